@@ -1,0 +1,29 @@
+#pragma once
+/// @file
+/// @brief One volume as a probe delivered it: the value type every source produces.
+
+#include <array>
+#include <chrono>
+#include <cstdint>
+#include <vector>
+
+namespace sonomesh::acquire {
+
+/// Voxel types a probe can deliver; the values are the probe stream protocol's codes.
+enum class ProbeVoxelType : std::uint8_t { UInt8 = 1, UInt16 = 2 };
+
+/// Bytes per voxel of a probe voxel type.
+constexpr int bytes_per_voxel(ProbeVoxelType type) { return type == ProbeVoxelType::UInt16 ? 2 : 1; }
+
+struct RawVolume {
+  std::uint64_t sequence = 0;      // +1 per volume at the probe; a gap means volumes were lost
+  std::uint64_t timestamp_ns = 0;  // probe clock
+  std::array<int, 3> dims{};       // nx, ny, nz; x fastest in memory
+  ProbeVoxelType type = ProbeVoxelType::UInt8;
+  std::array<float, 3> spacing_mm{1.0f, 1.0f, 1.0f};
+  std::array<float, 3> origin_mm{0.0f, 0.0f, 0.0f};
+  std::vector<std::uint8_t> voxels;  // nx*ny*nz*bytes_per_voxel(type), little endian
+  std::chrono::steady_clock::time_point received{};  // host clock, when the last byte arrived
+};
+
+}  // namespace sonomesh::acquire
