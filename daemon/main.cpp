@@ -1,0 +1,23 @@
+// sonomeshd: the per-volume pipeline as a one-shot command (`process`) and as a daemon (`run`).
+#include <cstdio>
+#include <exception>
+
+#include "daemon/commands.h"
+
+int main(int argc, char** argv) {
+  CLI::App app{"sonomeshd: topologically correct surfaces from 3D ultrasound volumes"};
+  app.require_subcommand(1);
+  int exit_code = 0;
+  sonomesh::daemon::add_process_command(app, exit_code);
+  sonomesh::daemon::add_run_command(app, exit_code);
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    return app.exit(e);
+  } catch (const std::exception& e) {
+    // Last line of defence: a bad input must give one line and a non-zero exit, never a crash.
+    std::fprintf(stderr, "sonomeshd: %s\n", e.what());
+    return 1;
+  }
+  return exit_code;
+}
