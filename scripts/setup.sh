@@ -10,6 +10,8 @@ packages=(
   libusb-1.0-0-dev linux-libc-dev zlib1g-dev libexpected-dev
   # volume/: smoothing, grids, NRRD
   libopencv-core-dev libopencv-imgproc-dev libeigen3-dev libopenvdb-dev libtbb-dev libteem-dev
+  # OpenVDB 10 headers include Boost (numeric/conversion, any, uuid); its -dev package omits them
+  libboost-dev
   # segment/ and reconstruct/
   libopenmesh-dev libfftw3-dev
   # daemon/

@@ -1,4 +1,8 @@
+// Volume type, smoothing, gradients and sampling.
 #include <gtest/gtest.h>
+
+#include <cmath>
+#include <random>
 
 #include "volume/volume.h"
 
@@ -12,4 +16,159 @@ TEST(Volume, IndexAndMillimetresMapBothWays) {
   EXPECT_FLOAT_EQ(p.z(), 36.0f);
   EXPECT_TRUE(v.mm_to_index(p).isApprox(Vec3f(1, 2, 3)));
   EXPECT_EQ(v.linear_index(1, 2, 3), std::size_t{1 + 4 * (2 + 5 * 3)});
+}
+
+namespace {
+
+// Mass-weighted mean and variance (in voxels) of a non-negative volume along each axis.
+void moments(const Volume& v, Vec3d& mean, Vec3d& var, double& mass) {
+  mass = 0;
+  mean.setZero();
+  var.setZero();
+  const Vec3i d = v.dims();
+  for (int k = 0; k < d.z(); ++k)
+    for (int j = 0; j < d.y(); ++j)
+      for (int i = 0; i < d.x(); ++i) {
+        const double w = v.value(i, j, k);
+        mass += w;
+        mean += w * Vec3d(i, j, k);
+      }
+  mean /= mass;
+  for (int k = 0; k < d.z(); ++k)
+    for (int j = 0; j < d.y(); ++j)
+      for (int i = 0; i < d.x(); ++i) {
+        const double w = v.value(i, j, k);
+        const Vec3d r = Vec3d(i, j, k) - mean;
+        var += w * r.cwiseProduct(r);
+      }
+  var /= mass;
+}
+
+Volume linear_ramp(const Vec3i& dims, const Vec3f& spacing, const Vec3f& origin, const Vec3f& a,
+                   float c) {
+  Volume v(dims, spacing, origin, VoxelType::Float32);
+  for (int k = 0; k < dims.z(); ++k)
+    for (int j = 0; j < dims.y(); ++j)
+      for (int i = 0; i < dims.x(); ++i)
+        v.f32()[v.linear_index(i, j, k)] = a.dot(v.index_to_mm(Vec3f(i, j, k))) + c;
+  return v;
+}
+
+}  // namespace
+
+TEST(Smoothing, ImpulseSpreadsWithVarianceSigmaVoxSquaredOnAnisotropicGrid) {
+  // sigma 2 mm on spacing (0.5, 1, 2) mm is 4, 2 and 1 voxels.
+  Volume v(Vec3i(49, 41, 33), Vec3f(0.5f, 1.0f, 2.0f), Vec3f(-3, 2, 7), VoxelType::Float32);
+  v.f32()[v.linear_index(24, 20, 16)] = 1000.0f;
+  const Volume s = smooth_gaussian(v, 2.0f);
+  ASSERT_EQ(s.type(), VoxelType::Float32);
+  EXPECT_EQ(s.dims(), v.dims());
+  EXPECT_EQ(s.spacing_mm(), v.spacing_mm());
+  EXPECT_EQ(s.origin_mm(), v.origin_mm());
+  Vec3d mean, var;
+  double mass;
+  moments(s, mean, var, mass);
+  EXPECT_NEAR(mass, 1000.0, 0.1);
+  EXPECT_NEAR(mean.x(), 24.0, 1e-3);
+  EXPECT_NEAR(mean.y(), 20.0, 1e-3);
+  EXPECT_NEAR(mean.z(), 16.0, 1e-3);
+  EXPECT_NEAR(var.x(), 16.0, 16.0 * 0.02);
+  EXPECT_NEAR(var.y(), 4.0, 4.0 * 0.02);
+  EXPECT_NEAR(var.z(), 1.0, 1.0 * 0.02);
+  // Separable Gaussian: the profile along x through the peak is a Gaussian of sigma 4 voxels.
+  const float peak = s.value(24, 20, 16);
+  EXPECT_NEAR(s.value(28, 20, 16) / peak, std::exp(-0.5f), 0.01f);
+  EXPECT_NEAR(s.value(24, 22, 16) / peak, std::exp(-0.5f), 0.01f);
+  EXPECT_NEAR(s.value(24, 20, 17) / peak, std::exp(-0.5f), 0.02f);
+}
+
+TEST(Smoothing, LinearRampIsUnchangedAwayFromBordersAndIntegerTypesMatchFloat) {
+  const Vec3i dims(40, 36, 30);
+  const Volume ramp = linear_ramp(dims, Vec3f(1, 1, 1), Vec3f(0, 0, 0), Vec3f(1.5f, 2.0f, 2.5f), 10.0f);
+  const Volume s = smooth_gaussian(ramp, 1.5f);
+  const int r = 7;  // > 4 sigma
+  for (int k = r; k < dims.z() - r; k += 3)
+    for (int j = r; j < dims.y() - r; j += 3)
+      for (int i = r; i < dims.x() - r; i += 3)
+        ASSERT_NEAR(s.value(i, j, k), ramp.value(i, j, k), 1e-3f) << i << " " << j << " " << k;
+
+  Volume u8(dims, Vec3f(1, 1, 1), Vec3f(0, 0, 0), VoxelType::UInt8);
+  Volume u16(dims, Vec3f(1, 1, 1), Vec3f(0, 0, 0), VoxelType::UInt16);
+  Volume f(dims, Vec3f(1, 1, 1), Vec3f(0, 0, 0), VoxelType::Float32);
+  std::mt19937 rng(3);
+  for (std::size_t n = 0; n < f.voxel_count(); ++n) {
+    const auto val = static_cast<std::uint8_t>(rng() % 256);
+    u8.u8()[n] = val;
+    u16.u16()[n] = val;
+    f.f32()[n] = val;
+  }
+  const Volume a = smooth_gaussian(u8, 1.0f), b = smooth_gaussian(u16, 1.0f), c = smooth_gaussian(f, 1.0f);
+  for (std::size_t n = 0; n < f.voxel_count(); n += 97) {
+    ASSERT_NEAR(a.f32()[n], c.f32()[n], 1e-3f);
+    ASSERT_NEAR(b.f32()[n], c.f32()[n], 1e-3f);
+  }
+  // Replicated borders: a constant volume stays constant everywhere, corners included.
+  Volume constant(Vec3i(9, 8, 7), Vec3f(1, 1, 1), Vec3f(0, 0, 0), VoxelType::UInt8);
+  std::fill(constant.u8().begin(), constant.u8().end(), std::uint8_t{42});
+  const Volume sc = smooth_gaussian(constant, 3.0f);
+  for (float x : sc.f32()) ASSERT_NEAR(x, 42.0f, 1e-3f);
+}
+
+TEST(Smoothing, NonPositiveSigmaOnlyConverts) {
+  Volume v(Vec3i(5, 4, 3), Vec3f(1, 1, 1), Vec3f(0, 0, 0), VoxelType::UInt16);
+  v.u16()[7] = 300;
+  const Volume s = smooth_gaussian(v, 0.0f);
+  ASSERT_EQ(s.type(), VoxelType::Float32);
+  EXPECT_EQ(s.f32()[7], 300.0f);
+  EXPECT_EQ(s.f32()[8], 0.0f);
+  EXPECT_THROW(smooth_gaussian(Volume{}, 1.0f), std::invalid_argument);
+}
+
+TEST(Gradient, LinearRampIsExactInMillimetresIncludingBorders) {
+  const Vec3f a(2.0f, 3.0f, -1.0f);
+  const Volume ramp = linear_ramp(Vec3i(12, 10, 8), Vec3f(0.5f, 1.25f, 2.0f), Vec3f(-4, 1, 3), a, 5.0f);
+  const Gradient g = central_gradient(ramp);
+  ASSERT_EQ(g.gx.dims(), ramp.dims());
+  for (std::size_t n = 0; n < ramp.voxel_count(); ++n) {
+    ASSERT_NEAR(g.gx.f32()[n], 2.0f, 1e-3f);
+    ASSERT_NEAR(g.gy.f32()[n], 3.0f, 1e-3f);
+    ASSERT_NEAR(g.gz.f32()[n], -1.0f, 1e-3f);
+  }
+  // A quadratic along x: central differences are exact inside, one-sided at the ends.
+  Volume q(Vec3i(6, 2, 1), Vec3f(1, 1, 1), Vec3f(0, 0, 0), VoxelType::UInt8);
+  for (int i = 0; i < 6; ++i) q.u8()[q.linear_index(i, 0, 0)] = q.u8()[q.linear_index(i, 1, 0)] = i * i;
+  const Gradient gq = central_gradient(q);
+  EXPECT_FLOAT_EQ(gq.gx.value(0, 0, 0), 1.0f);
+  EXPECT_FLOAT_EQ(gq.gx.value(3, 0, 0), 6.0f);
+  EXPECT_FLOAT_EQ(gq.gx.value(5, 1, 0), 9.0f);
+  EXPECT_FLOAT_EQ(gq.gy.value(3, 0, 0), 0.0f);
+  EXPECT_FLOAT_EQ(gq.gz.value(3, 0, 0), 0.0f);  // single slice
+}
+
+TEST(Sampling, TrilinearIsExactOnLinearFunctionsAndClampsOutside) {
+  const Vec3f a(0.7f, -1.3f, 2.1f);
+  const Volume ramp = linear_ramp(Vec3i(10, 9, 8), Vec3f(0.5f, 1.0f, 1.5f), Vec3f(1, -2, 3), a, 4.0f);
+  const Gradient g = central_gradient(ramp);
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<float> ux(0, 9), uy(0, 8), uz(0, 7);
+  for (int n = 0; n < 500; ++n) {
+    const Vec3f p = ramp.index_to_mm(Vec3f(ux(rng), uy(rng), uz(rng)));
+    ASSERT_NEAR(sample_mm(ramp, p), a.dot(p) + 4.0f, 1e-3f);
+    ASSERT_TRUE(sample_gradient_mm(g, p).isApprox(a, 1e-4f));
+  }
+  // Outside: clamped to the box of voxel centres.
+  const Vec3f far = ramp.max_mm() + Vec3f(10, 20, 30);
+  EXPECT_NEAR(sample_mm(ramp, far), a.dot(ramp.max_mm()) + 4.0f, 1e-3f);
+  const Vec3f below = ramp.min_mm() - Vec3f(5, 0, 0) + Vec3f(0, 1, 1.5f);
+  EXPECT_NEAR(sample_mm(ramp, below), a.dot(ramp.min_mm() + Vec3f(0, 1, 1.5f)) + 4.0f, 1e-3f);
+  EXPECT_TRUE(sample_gradient_mm(g, far).isApprox(a, 1e-4f));
+  // Exact at voxel centres, for every voxel type.
+  Volume u16(Vec3i(3, 3, 3), Vec3f(2, 2, 2), Vec3f(0, 0, 0), VoxelType::UInt16);
+  u16.u16()[u16.linear_index(2, 1, 0)] = 1000;
+  EXPECT_FLOAT_EQ(sample_mm(u16, Vec3f(4, 2, 0)), 1000.0f);
+  EXPECT_FLOAT_EQ(sample_mm(u16, Vec3f(3, 2, 0)), 500.0f);
+  // Degenerate single-voxel axes still sample.
+  Volume flat(Vec3i(4, 4, 1), Vec3f(1, 1, 1), Vec3f(0, 0, 0), VoxelType::UInt8);
+  flat.u8()[flat.linear_index(1, 1, 0)] = 8;
+  EXPECT_FLOAT_EQ(sample_mm(flat, Vec3f(1.5f, 1.0f, 3.0f)), 4.0f);
 }

@@ -1,0 +1,107 @@
+// OccupancyGrid and write_vdb.
+#include <gtest/gtest.h>
+
+#include <filesystem>
+
+#include <openvdb/io/File.h>
+#include <openvdb/openvdb.h>
+
+#include "volume/volume.h"
+
+using namespace sonomesh::volume;
+
+TEST(OccupancyGrid, SetGetCountAndLabels) {
+  const Volume like(Vec3i(20, 16, 12), Vec3f(0.5f, 1.0f, 2.0f), Vec3f(1, 2, 3), VoxelType::UInt8);
+  OccupancyGrid grid(like);
+  EXPECT_EQ(grid.active_count(), 0u);
+  EXPECT_FALSE(grid.get(Vec3i(3, 4, 5)));
+  // A 5x4x3 block plus the two extreme corners.
+  for (int k = 2; k < 5; ++k)
+    for (int j = 3; j < 7; ++j)
+      for (int i = 4; i < 9; ++i) grid.set(Vec3i(i, j, k));
+  grid.set(Vec3i(0, 0, 0));
+  grid.set(Vec3i(19, 15, 11));
+  grid.set(Vec3i(4, 3, 2));  // already on: no change
+  EXPECT_EQ(grid.active_count(), 62u);
+  EXPECT_TRUE(grid.get(Vec3i(4, 3, 2)));
+  EXPECT_TRUE(grid.get(Vec3i(19, 15, 11)));
+  EXPECT_FALSE(grid.get(Vec3i(9, 3, 2)));
+  grid.set(Vec3i(0, 0, 0), false);
+  EXPECT_FALSE(grid.get(Vec3i(0, 0, 0)));
+  EXPECT_EQ(grid.active_count(), 61u);
+
+  const Volume labels = grid.to_labels();
+  ASSERT_EQ(labels.type(), VoxelType::UInt8);
+  EXPECT_EQ(labels.dims(), like.dims());
+  EXPECT_EQ(labels.spacing_mm(), like.spacing_mm());
+  EXPECT_EQ(labels.origin_mm(), like.origin_mm());
+  std::size_t on = 0;
+  for (auto v : labels.u8()) on += v;
+  EXPECT_EQ(on, 61u);
+  EXPECT_EQ(labels.value(5, 4, 3), 1.0f);
+  EXPECT_EQ(labels.value(19, 15, 11), 1.0f);
+  EXPECT_EQ(labels.value(0, 0, 0), 0.0f);
+
+  // Moves keep the contents.
+  OccupancyGrid moved(std::move(grid));
+  EXPECT_EQ(moved.active_count(), 61u);
+  EXPECT_TRUE(moved.get(Vec3i(8, 6, 4)));
+}
+
+TEST(OccupancyGrid, LargeFillCountsEveryVoxel) {
+  const Volume like(Vec3i(48, 48, 48), Vec3f(1, 1, 1), Vec3f(0, 0, 0), VoxelType::UInt8);
+  OccupancyGrid grid(like);
+  std::size_t expected = 0;
+  for (int k = 0; k < 48; ++k)
+    for (int j = 0; j < 48; ++j)
+      for (int i = 0; i < 48; ++i)
+        if ((i - 24) * (i - 24) + (j - 24) * (j - 24) + (k - 24) * (k - 24) <= 400) {
+          grid.set(Vec3i(i, j, k));
+          ++expected;
+        }
+  EXPECT_EQ(grid.active_count(), expected);
+  const Volume labels = grid.to_labels();
+  std::size_t on = 0;
+  for (auto v : labels.u8()) on += v;
+  EXPECT_EQ(on, expected);
+}
+
+TEST(WriteVdb, FloatGridReadsBackWithTransformAndValues) {
+  const auto dir = std::filesystem::temp_directory_path() / "sonomesh_volume_vdb_test";
+  std::filesystem::create_directories(dir);
+  const auto path = dir / "field.vdb";
+  Volume field(Vec3i(16, 12, 10), Vec3f(0.5f, 0.75f, 1.5f), Vec3f(-2, 3, 4), VoxelType::Float32);
+  std::size_t nonzero = 0;
+  for (int k = 0; k < 10; ++k)
+    for (int j = 0; j < 12; ++j)
+      for (int i = 0; i < 16; ++i)
+        if ((i + j + k) % 3 == 0) {
+          field.f32()[field.linear_index(i, j, k)] = 0.5f + i + 10 * j + 100 * k;
+          ++nonzero;
+        }
+  ASSERT_FALSE(write_vdb(field, path, "density").has_value());
+
+  openvdb::initialize();
+  openvdb::io::File file(path.string());
+  file.open();
+  auto base = file.readGrid("density");
+  file.close();
+  auto grid = openvdb::gridPtrCast<openvdb::FloatGrid>(base);
+  ASSERT_TRUE(grid);
+  EXPECT_EQ(static_cast<std::size_t>(grid->activeVoxelCount()), nonzero);
+  const openvdb::Vec3d w = grid->transform().indexToWorld(openvdb::Vec3d(2, 4, 6));
+  EXPECT_NEAR(w.x(), -2 + 0.5 * 2, 1e-6);
+  EXPECT_NEAR(w.y(), 3 + 0.75 * 4, 1e-6);
+  EXPECT_NEAR(w.z(), 4 + 1.5 * 6, 1e-6);
+  auto acc = grid->getConstAccessor();
+  EXPECT_FLOAT_EQ(acc.getValue(openvdb::Coord(3, 3, 3)), 0.5f + 3 + 30 + 300);
+  EXPECT_FLOAT_EQ(acc.getValue(openvdb::Coord(1, 0, 0)), 0.0f);
+
+  // Wrong type and unwritable path are errors, not exceptions.
+  const Volume u8(Vec3i(2, 2, 2), Vec3f(1, 1, 1), Vec3f(0, 0, 0), VoxelType::UInt8);
+  EXPECT_TRUE(write_vdb(u8, dir / "u8.vdb").has_value());
+  const auto bad = write_vdb(field, dir / "no_such_dir" / "x.vdb");
+  ASSERT_TRUE(bad.has_value());
+  EXPECT_EQ(bad->code, VolumeIoError::Code::IoError);
+  std::filesystem::remove_all(dir);
+}

@@ -1,0 +1,130 @@
+// OpenVDB grids. The only translation unit that includes OpenVDB (its headers compile slowly).
+#include <mutex>
+#include <stdexcept>
+
+#include <openvdb/io/File.h>
+#include <openvdb/math/Transform.h>
+#include <openvdb/openvdb.h>
+
+#include "volume/volume.h"
+
+namespace sonomesh::volume {
+namespace {
+
+void init_openvdb() {
+  static std::once_flag once;
+  std::call_once(once, [] { openvdb::initialize(); });
+}
+
+// Index space (i, j, k) -> mm: p = origin + spacing ⊙ ijk, i.e. a scale-then-translate map.
+openvdb::math::Transform::Ptr make_transform(const Volume& like) {
+  const openvdb::Vec3d scale(like.spacing_mm().x(), like.spacing_mm().y(), like.spacing_mm().z());
+  const openvdb::Vec3d translate(like.origin_mm().x(), like.origin_mm().y(), like.origin_mm().z());
+  openvdb::math::MapBase::Ptr map(new openvdb::math::ScaleTranslateMap(scale, translate));
+  return openvdb::math::Transform::Ptr(new openvdb::math::Transform(map));
+}
+
+openvdb::Coord coord(const Vec3i& ijk) { return openvdb::Coord(ijk.x(), ijk.y(), ijk.z()); }
+
+}  // namespace
+
+struct OccupancyGrid::Impl {
+  Vec3i dims;
+  Vec3f spacing_mm;
+  Vec3f origin_mm;
+  openvdb::BoolGrid::Ptr grid;
+  // get() is logically const; the accessor caches the last leaf, which is what makes the balloon's
+  // neighbour-by-neighbour access cheap. One accessor per grid: not for concurrent use.
+  mutable openvdb::BoolGrid::Accessor accessor;
+
+  explicit Impl(const Volume& like)
+      : dims(like.dims()),
+        spacing_mm(like.spacing_mm()),
+        origin_mm(like.origin_mm()),
+        grid(make_grid(like)),
+        accessor(grid->getAccessor()) {}
+
+  static openvdb::BoolGrid::Ptr make_grid(const Volume& like) {
+    init_openvdb();
+    auto g = openvdb::BoolGrid::create(false);
+    g->setTransform(make_transform(like));
+    g->setName("occupancy");
+    return g;
+  }
+};
+
+OccupancyGrid::OccupancyGrid(const Volume& like) {
+  if (like.empty()) throw std::invalid_argument("OccupancyGrid: empty reference volume");
+  impl_ = std::make_unique<Impl>(like);
+}
+OccupancyGrid::~OccupancyGrid() = default;
+OccupancyGrid::OccupancyGrid(OccupancyGrid&&) noexcept = default;
+OccupancyGrid& OccupancyGrid::operator=(OccupancyGrid&&) noexcept = default;
+
+bool OccupancyGrid::get(const Vec3i& ijk) const {
+  if (!impl_) throw std::logic_error("OccupancyGrid: used after move");
+  return impl_->accessor.isValueOn(coord(ijk));
+}
+
+void OccupancyGrid::set(const Vec3i& ijk, bool on) {
+  if (!impl_) throw std::logic_error("OccupancyGrid: used after move");
+  if (on)
+    impl_->accessor.setValueOn(coord(ijk), true);
+  else
+    impl_->accessor.setValueOff(coord(ijk), false);
+}
+
+std::size_t OccupancyGrid::active_count() const {
+  if (!impl_) throw std::logic_error("OccupancyGrid: used after move");
+  return static_cast<std::size_t>(impl_->grid->activeVoxelCount());
+}
+
+Volume OccupancyGrid::to_labels() const {
+  if (!impl_) throw std::logic_error("OccupancyGrid: used after move");
+  Volume labels(impl_->dims, impl_->spacing_mm, impl_->origin_mm, VoxelType::UInt8);
+  auto& out = labels.u8();
+  const Vec3i& d = impl_->dims;
+  for (auto it = impl_->grid->cbeginValueOn(); it; ++it) {
+    const openvdb::CoordBBox box = it.getBoundingBox();  // a tile may cover many voxels
+    for (int k = std::max(box.min().z(), 0); k <= std::min(box.max().z(), d.z() - 1); ++k)
+      for (int j = std::max(box.min().y(), 0); j <= std::min(box.max().y(), d.y() - 1); ++j)
+        for (int i = std::max(box.min().x(), 0); i <= std::min(box.max().x(), d.x() - 1); ++i)
+          out[labels.linear_index(i, j, k)] = 1;
+  }
+  return labels;
+}
+
+std::optional<VolumeIoError> write_vdb(const Volume& field, const std::filesystem::path& path,
+                                       const std::string& grid_name) {
+  using Code = VolumeIoError::Code;
+  if (field.empty()) return VolumeIoError{Code::BadDimensions, path.string() + ": empty volume"};
+  if (field.type() != VoxelType::Float32)
+    return VolumeIoError{Code::UnsupportedType,
+                         path.string() + ": write_vdb needs a float volume, got " +
+                             to_string(field.type())};
+  try {
+    init_openvdb();
+    auto grid = openvdb::FloatGrid::create(0.0f);
+    grid->setTransform(make_transform(field));
+    grid->setName(grid_name);
+    grid->setGridClass(openvdb::GRID_FOG_VOLUME);
+    auto acc = grid->getAccessor();
+    const Vec3i& d = field.dims();
+    const auto& v = field.f32();
+    std::size_t idx = 0;
+    for (int k = 0; k < d.z(); ++k)
+      for (int j = 0; j < d.y(); ++j)
+        for (int i = 0; i < d.x(); ++i, ++idx)
+          if (v[idx] != 0.0f) acc.setValueOn(openvdb::Coord(i, j, k), v[idx]);
+    openvdb::io::File file(path.string());
+    file.write({grid});
+    file.close();
+  } catch (const std::exception& e) {
+    std::string msg = e.what();
+    std::replace(msg.begin(), msg.end(), '\n', ' ');
+    return VolumeIoError{Code::IoError, path.string() + ": cannot write VDB: " + msg};
+  }
+  return std::nullopt;
+}
+
+}  // namespace sonomesh::volume
