@@ -2,6 +2,7 @@
 /// @file
 /// @brief Factories open_source() dispatches to, one per URI scheme (internal).
 
+#include <map>
 #include <memory>
 #include <string>
 
@@ -10,6 +11,16 @@
 #include "acquire/acquire.h"
 
 namespace sonomesh::acquire::internal {
+
+/// "PATH?key=value&key2=value2" -> path and query (no percent-decoding; keys are plain words).
+struct SplitSpec {
+  std::string path;
+  std::map<std::string, std::string> query;
+};
+SplitSpec split_query(const std::string& spec);
+
+/// The reader registered with set_volume_file_reader (empty if none).
+VolumeFileReader volume_file_reader();
 
 /// `spec` is the URI without its scheme, e.g. "/tmp/p.sock" for unix:/tmp/p.sock.
 tl::expected<std::unique_ptr<Source>, AcquireError> open_unix_source(const std::string& spec,
