@@ -1,0 +1,96 @@
+// process_bench: per-stage time of the pipeline (daemon::run_pipeline, what `sonomeshd process`
+// and every daemon job run) on simulator phantoms of 128³ and 256³.
+//   process_bench [--sizes 128,256] [--phantoms cyst-needle,torus] [--repeat 5] [--format md|json]
+// One warm-up run per case (FFTW plans, page faults), then the median of --repeat runs per stage.
+// Targets (DESIGN/issue 4): total <= 100 ms at 128³, <= 750 ms at 256³.
+#include <CLI/CLI.hpp>
+#include <algorithm>
+#include <cstdio>
+#include <nlohmann/json.hpp>
+#include <string>
+#include <vector>
+
+#include "daemon/pipeline.h"
+#include "sim/sim.h"
+
+namespace {
+
+using namespace sonomesh;
+
+double median(std::vector<double> values) {
+  std::sort(values.begin(), values.end());
+  return values[values.size() / 2];
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{"process_bench: per-stage pipeline time"};
+  std::vector<int> sizes{128, 256};
+  std::vector<std::string> phantoms{"sphere", "cyst-needle"};
+  int repeat = 5;
+  std::string format = "md";
+  app.add_option("--sizes", sizes, "Volume edges (voxels)")->delimiter(',');
+  app.add_option("--phantoms", phantoms, "Phantom names")->delimiter(',');
+  app.add_option("--repeat", repeat, "Timed runs per case")->check(CLI::Range(1, 100));
+  app.add_option("--format", format, "md or json")->check(CLI::IsMember({"md", "json"}));
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::CallForHelp& e) {
+    return app.exit(e);
+  } catch (const CLI::ParseError& e) {
+    std::fprintf(stderr, "process_bench: %s\n", e.what());
+    return 2;
+  }
+  if (format == "md") {
+    std::printf("| phantom | size | smooth | balloon | opening | reconstruct | mesh | total (ms) "
+                "| target | balloon iterations | grid |\n");
+    std::printf("|---|---|---|---|---|---|---|---|---|---|---|\n");
+  }
+  try {
+    for (const int size : sizes)
+      for (const std::string& name : phantoms) {
+        const sim::Phantom phantom = sim::make_phantom({.phantom = name, .size_vox = size});
+        const daemon::PipelineConfig config;
+        daemon::PipelineResult result = daemon::run_pipeline(phantom.image, phantom.seed_mm, config);
+        std::vector<double> smooth, balloon, opening, reconstruct, mesh, total;
+        for (int r = 0; r < repeat; ++r) {
+          result = daemon::run_pipeline(phantom.image, phantom.seed_mm, config);
+          const daemon::StageTimings& t = result.timings;
+          smooth.push_back(t.smooth_ms);
+          balloon.push_back(t.balloon_ms);
+          opening.push_back(t.opening_ms);
+          reconstruct.push_back(t.reconstruct_ms);
+          mesh.push_back(t.mesh_ms);
+          total.push_back(t.total_ms);
+        }
+        const double target_ms = size <= 128 ? 100.0 : 750.0;
+        const std::string grid = std::to_string(result.grid_dims.x()) + "x" +
+                                 std::to_string(result.grid_dims.y()) + "x" +
+                                 std::to_string(result.grid_dims.z());
+        if (format == "json") {
+          nlohmann::json row = {{"phantom", name},        {"size", size},
+                                {"ok", result.ok},        {"smooth_ms", median(smooth)},
+                                {"balloon_ms", median(balloon)},
+                                {"opening_ms", median(opening)},
+                                {"reconstruct_ms", median(reconstruct)},
+                                {"mesh_ms", median(mesh)}, {"total_ms", median(total)},
+                                {"target_ms", target_ms},
+                                {"iterations", result.balloon_iterations},
+                                {"grid", grid}};
+          std::printf("%s\n", row.dump().c_str());
+        } else {
+          std::printf("| %s%s | %d³ | %.1f | %.1f | %.1f | %.1f | %.1f | %.1f | %s %.0f | %d | %s |\n",
+                      name.c_str(), result.ok ? "" : " (failed)", size, median(smooth),
+                      median(balloon), median(opening), median(reconstruct), median(mesh),
+                      median(total), median(total) <= target_ms ? "≤" : "> (missed)", target_ms,
+                      result.balloon_iterations, grid.c_str());
+        }
+        std::fflush(stdout);
+      }
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "process_bench: %s\n", e.what());
+    return 1;
+  }
+  return 0;
+}

@@ -1,0 +1,220 @@
+#include "daemon/internal/metrics.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <stdexcept>
+#include <thread>
+
+namespace sonomesh::daemon::internal {
+namespace {
+
+using volume::Vec3f;
+using volume::Vec3i;
+using volume::Volume;
+
+// Finite stand-in for "no feature": keeps the parabola intersections below free of inf - inf.
+constexpr float kFar = 1e20f;
+
+// Runs body(first, last) over [0, n) split across the cores; the transforms are memory-bound line
+// sweeps, so two workers on the CI's two cores roughly halve them.
+template <typename Body>
+void parallel_lines(std::size_t n, Body body) {
+  const std::size_t workers =
+      std::clamp<std::size_t>(std::thread::hardware_concurrency(), 1, 8);
+  if (workers == 1 || n < 64) {
+    body(std::size_t{0}, n);
+    return;
+  }
+  std::vector<std::jthread> threads;
+  const std::size_t chunk = (n + workers - 1) / workers;
+  for (std::size_t w = 0; w < workers; ++w) {
+    const std::size_t first = w * chunk;
+    const std::size_t last = std::min(n, first + chunk);
+    if (first >= last) break;
+    threads.emplace_back([=] { body(first, last); });
+  }
+}
+
+// One-dimensional lower envelope of parabolas (Felzenszwalb & Huttenlocher): out[p] =
+// min_q ((p - q)·s)² + f[q]. v, z are scratch of size n and n + 1.
+void edt_1d(const float* f, float* out, int n, float s, int* v, float* z) {
+  const float s2 = s * s;
+  int k = 0;
+  v[0] = 0;
+  z[0] = -std::numeric_limits<float>::max();
+  z[1] = std::numeric_limits<float>::max();
+  for (int q = 1; q < n; ++q) {
+    // Intersection of the parabolas rooted at q and v[k], in index units; z[0] is -max, so the
+    // loop never pops the first parabola.
+    auto intersect = [&](int r) {
+      return ((f[q] + s2 * q * q) - (f[r] + s2 * r * r)) / (2.0f * s2 * (q - r));
+    };
+    float inter = intersect(v[k]);
+    while (inter <= z[k]) {
+      --k;
+      inter = intersect(v[k]);
+    }
+    ++k;
+    v[k] = q;
+    z[k] = inter;
+    z[k + 1] = std::numeric_limits<float>::max();
+  }
+  k = 0;
+  for (int p = 0; p < n; ++p) {
+    while (z[k + 1] < static_cast<float>(p)) ++k;
+    const float d = static_cast<float>(p - v[k]) * s;
+    out[p] = std::min(kFar, d * d + f[v[k]]);
+  }
+}
+
+// Applies edt_1d along `axis` of a dense float grid in place.
+void transform_axis(std::vector<float>& grid, const Vec3i& dims, int axis, float s) {
+  const int n = dims[axis];
+  const std::size_t stride = axis == 0 ? 1
+                             : axis == 1 ? static_cast<std::size_t>(dims.x())
+                                         : static_cast<std::size_t>(dims.x()) * dims.y();
+  const int a = axis == 0 ? 1 : 0;          // the two other axes enumerate the lines
+  const int b = axis == 2 ? 1 : 2;
+  const std::size_t lines = static_cast<std::size_t>(dims[a]) * dims[b];
+  parallel_lines(lines, [&](std::size_t first, std::size_t last) {
+    std::vector<float> f(n), out(n), z(n + 1);
+    std::vector<int> v(n);
+    for (std::size_t line = first; line < last; ++line) {
+      Vec3i ijk = Vec3i::Zero();
+      ijk[a] = static_cast<int>(line % dims[a]);
+      ijk[b] = static_cast<int>(line / dims[a]);
+      const std::size_t base =
+          (static_cast<std::size_t>(ijk.z()) * dims.y() + ijk.y()) * dims.x() + ijk.x();
+      for (int p = 0; p < n; ++p) f[p] = grid[base + p * stride];
+      edt_1d(f.data(), out.data(), n, s, v.data(), z.data());
+      for (int p = 0; p < n; ++p) grid[base + p * stride] = out[p];
+    }
+  });
+}
+
+void require_same_grid(const Volume& a, const Volume& b) {
+  if (a.dims() != b.dims())
+    throw std::invalid_argument("label volumes have different dimensions");
+}
+
+bool inside(const Volume& labels, int i, int j, int k) { return labels.value(i, j, k) > 0.0f; }
+
+// Inside voxels with a 6-neighbour outside or on the border of the volume.
+std::vector<bool> boundary_of(const Volume& labels) {
+  const Vec3i d = labels.dims();
+  std::vector<bool> boundary(labels.voxel_count(), false);
+  for (int k = 0; k < d.z(); ++k)
+    for (int j = 0; j < d.y(); ++j)
+      for (int i = 0; i < d.x(); ++i) {
+        if (!inside(labels, i, j, k)) continue;
+        const bool border = i == 0 || j == 0 || k == 0 || i == d.x() - 1 || j == d.y() - 1 ||
+                            k == d.z() - 1;
+        if (border || !inside(labels, i - 1, j, k) || !inside(labels, i + 1, j, k) ||
+            !inside(labels, i, j - 1, k) || !inside(labels, i, j + 1, k) ||
+            !inside(labels, i, j, k - 1) || !inside(labels, i, j, k + 1))
+          boundary[labels.linear_index(i, j, k)] = true;
+      }
+  return boundary;
+}
+
+}  // namespace
+
+std::vector<float> squared_distance_transform_mm2(const std::vector<bool>& feature,
+                                                  const Vec3i& dims, const Vec3f& spacing_mm) {
+  const std::size_t n = static_cast<std::size_t>(dims.x()) * dims.y() * dims.z();
+  if (feature.size() != n) throw std::invalid_argument("feature size does not match dims");
+  std::vector<float> grid(n);
+  for (std::size_t idx = 0; idx < n; ++idx) grid[idx] = feature[idx] ? 0.0f : kFar;
+  for (int axis = 0; axis < 3; ++axis) transform_axis(grid, dims, axis, spacing_mm[axis]);
+  for (float& value : grid)
+    if (value >= kFar) value = std::numeric_limits<float>::infinity();
+  return grid;
+}
+
+bool deepest_interior_index(const Volume& labels, Vec3i& ijk, float& depth_mm) {
+  const Vec3i d = labels.dims();
+  // Crop to the labels' bounding box plus one voxel: the target is usually a small part of the
+  // volume, and the transform then costs a fraction of a full-volume pass.
+  Vec3i lo = d, hi = Vec3i::Constant(-1);
+  for (int k = 0; k < d.z(); ++k)
+    for (int j = 0; j < d.y(); ++j)
+      for (int i = 0; i < d.x(); ++i)
+        if (inside(labels, i, j, k)) {
+          lo = lo.cwiseMin(Vec3i(i, j, k));
+          hi = hi.cwiseMax(Vec3i(i, j, k));
+        }
+  if ((hi.array() < 0).any()) return false;
+  lo = (lo - Vec3i::Ones()).cwiseMax(Vec3i::Zero());
+  hi = (hi + Vec3i::Ones()).cwiseMin(d - Vec3i::Ones());
+  const Vec3i cd = hi - lo + Vec3i::Ones();
+  // Feature = outside. The crop may end at the volume border with the label still on: voxels
+  // beyond the border count as outside, which a one-voxel frame of "outside" models.
+  const Vec3i fd = cd + Vec3i::Constant(2);
+  std::vector<bool> outside(static_cast<std::size_t>(fd.x()) * fd.y() * fd.z(), true);
+  auto fidx = [&](int i, int j, int k) {
+    return (static_cast<std::size_t>(k) * fd.y() + j) * fd.x() + i;
+  };
+  for (int k = 0; k < cd.z(); ++k)
+    for (int j = 0; j < cd.y(); ++j)
+      for (int i = 0; i < cd.x(); ++i)
+        outside[fidx(i + 1, j + 1, k + 1)] = !inside(labels, lo.x() + i, lo.y() + j, lo.z() + k);
+  const auto d2 = squared_distance_transform_mm2(outside, fd, labels.spacing_mm());
+  float best = -1.0f;
+  for (int k = 1; k <= cd.z(); ++k)
+    for (int j = 1; j <= cd.y(); ++j)
+      for (int i = 1; i <= cd.x(); ++i) {
+        const float value = d2[fidx(i, j, k)];
+        if (value > best) {
+          best = value;
+          ijk = lo + Vec3i(i - 1, j - 1, k - 1);
+        }
+      }
+  depth_mm = std::sqrt(best);
+  return true;
+}
+
+double dice(const Volume& a, const Volume& b) {
+  require_same_grid(a, b);
+  const Vec3i d = a.dims();
+  std::size_t na = 0, nb = 0, both = 0;
+  for (int k = 0; k < d.z(); ++k)
+    for (int j = 0; j < d.y(); ++j)
+      for (int i = 0; i < d.x(); ++i) {
+        const bool ia = inside(a, i, j, k), ib = inside(b, i, j, k);
+        na += ia;
+        nb += ib;
+        both += ia && ib;
+      }
+  if (na + nb == 0) return 1.0;
+  return 2.0 * static_cast<double>(both) / static_cast<double>(na + nb);
+}
+
+SurfaceDistances surface_distances(const Volume& a, const Volume& b) {
+  require_same_grid(a, b);
+  const auto ba = boundary_of(a), bb = boundary_of(b);
+  SurfaceDistances result;
+  if (std::find(ba.begin(), ba.end(), true) == ba.end() ||
+      std::find(bb.begin(), bb.end(), true) == bb.end())
+    return result;
+  const Vec3f unit = Vec3f::Ones();  // voxels, whatever the spacing
+  const auto to_a = squared_distance_transform_mm2(ba, a.dims(), unit);
+  const auto to_b = squared_distance_transform_mm2(bb, a.dims(), unit);
+  std::vector<double> pooled;
+  for (std::size_t idx = 0; idx < ba.size(); ++idx) {
+    if (ba[idx]) pooled.push_back(std::sqrt(static_cast<double>(to_b[idx])));
+    if (bb[idx]) pooled.push_back(std::sqrt(static_cast<double>(to_a[idx])));
+  }
+  double sum = 0.0;
+  for (double value : pooled) sum += value;
+  result.mean_vox = sum / static_cast<double>(pooled.size());
+  std::sort(pooled.begin(), pooled.end());
+  const std::size_t p95 = static_cast<std::size_t>(
+      std::ceil(0.95 * static_cast<double>(pooled.size()))) - 1;
+  result.hd95_vox = pooled[std::min(p95, pooled.size() - 1)];
+  result.max_vox = pooled.back();
+  result.valid = true;
+  return result;
+}
+
+}  // namespace sonomesh::daemon::internal

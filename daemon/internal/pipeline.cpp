@@ -1,0 +1,111 @@
+// The per-volume pipeline (method.md §0-6): smooth -> balloon -> opening -> Kazhdan FFT
+// reconstruction -> marching cubes -> topology, labels, deepest interior point.
+#include <chrono>
+
+#include "daemon/internal/metrics.h"
+#include "daemon/pipeline.h"
+
+namespace sonomesh::daemon {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+double ms_since(Clock::time_point start) {
+  return std::chrono::duration<double, std::milli>(Clock::now() - start).count();
+}
+
+// Fewer oriented samples than this cannot describe a closed surface (the initial balloon alone has
+// 102 vertices); the FFT solve would only produce noise.
+constexpr std::size_t kMinSamples = 20;
+
+void count_stops(const std::vector<segment::StopReason>& stop, StopCounts& counts) {
+  for (segment::StopReason reason : stop) switch (reason) {
+      case segment::StopReason::Moving: ++counts.moving; break;
+      case segment::StopReason::Boundary: ++counts.boundary; break;
+      case segment::StopReason::Curvature: ++counts.curvature; break;
+      case segment::StopReason::SelfIntersection: ++counts.self_intersection; break;
+      case segment::StopReason::IterationLimit: ++counts.iteration_limit; break;
+    }
+}
+
+}  // namespace
+
+PipelineResult run_pipeline(const volume::Volume& input, const Vec3f& seed_mm,
+                            const PipelineConfig& config, std::stop_token stop) {
+  const auto start = Clock::now();
+  PipelineResult result;
+  auto finish = [&](std::string error) {
+    result.ok = error.empty();
+    result.error = std::move(error);
+    result.timings.total_ms = ms_since(start);
+    return std::move(result);
+  };
+  if (input.empty()) return finish("the volume is empty");
+  // The balloon's own precondition (it throws for a seed outside the volume); checked here so a
+  // tracked seed that drifted out becomes a failed volume, not an exception.
+  if (!seed_mm.allFinite() || !input.contains_mm(seed_mm))
+    return finish("the seed lies outside the volume");
+
+  // §0: smoothing and gradients.
+  auto t = Clock::now();
+  const float sigma_mm = config.smooth_sigma_mm.value_or(input.spacing_mm().minCoeff());
+  const volume::Volume smoothed = volume::smooth_gaussian(input, sigma_mm);
+  const volume::Gradient gradient = volume::central_gradient(smoothed);
+  result.timings.smooth_ms = ms_since(t);
+  if (stop.stop_requested()) return finish("stopped");
+
+  // §1-3: the balloon.
+  t = Clock::now();
+  segment::BalloonResult balloon =
+      segment::inflate_balloon(smoothed, gradient, seed_mm, config.balloon, stop);
+  result.timings.balloon_ms = ms_since(t);
+  result.balloon = std::move(balloon.mesh);
+  result.balloon_stop = std::move(balloon.stop);
+  result.balloon_stats = balloon.stats;
+  result.balloon_converged = balloon.converged;
+  result.balloon_iterations = balloon.stats.iterations;
+  count_stops(result.balloon_stop, result.stop_counts);
+  if (stop.stop_requested()) return finish("stopped");
+  if (!balloon.error.empty()) return finish("balloon: " + balloon.error);
+
+  // §4: opening at the self-intersections.
+  t = Clock::now();
+  const segment::PointCloud samples = reconstruct::open_balloon(result.balloon, result.balloon_stop);
+  result.timings.opening_ms = ms_since(t);
+  result.opened_points = static_cast<int>(samples.points.size());
+  if (samples.points.size() < kMinSamples)
+    return finish("the balloon left only " + std::to_string(samples.points.size()) +
+                  " oriented points after the opening");
+
+  // §5: Kazhdan's FFT reconstruction and marching cubes, on a grid of the volume's voxel size.
+  reconstruct::PoissonOptions poisson = config.poisson;
+  if (config.cell_from_voxel) poisson.cell_mm = input.spacing_mm().minCoeff();
+  reconstruct::SurfaceResult surface = reconstruct::reconstruct_surface(samples, seed_mm, poisson);
+  result.timings.reconstruct_ms = surface.reconstruct_ms;
+  result.timings.mesh_ms = surface.mesh_ms;
+  result.grid_dims = Vec3i(surface.grid_dims[0], surface.grid_dims[1], surface.grid_dims[2]);
+  result.grid_cell_mm = surface.cell_mm;
+  result.mesh = std::move(surface.mesh);
+  result.topology = surface.topology;
+  result.enclosed_volume_ml = surface.topology.volume_ml;
+  if (config.want_indicator) {
+    volume::Volume indicator = std::move(surface.indicator);
+    for (float& value : indicator.f32()) value -= surface.iso;  // the surface is the zero level
+    result.indicator = std::move(indicator);
+  }
+  if (result.mesh.triangles.empty()) return finish("the reconstruction produced no surface");
+  if (!surface.seed_enclosed)
+    return finish("the reconstructed surface does not enclose the seed");
+
+  // §6: labels on the input grid and the deepest interior point for seed tracking.
+  if (config.want_labels) {
+    result.labels = reconstruct::rasterize_labels(result.mesh, input);
+    Vec3i deepest;
+    float depth_mm = 0.0f;
+    if (internal::deepest_interior_index(*result.labels, deepest, depth_mm))
+      result.deepest_interior_mm = input.index_to_mm(deepest.cast<float>());
+  }
+  return finish("");
+}
+
+}  // namespace sonomesh::daemon

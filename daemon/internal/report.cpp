@@ -1,0 +1,58 @@
+// The per-volume report (DESIGN.md "--report"), shared by `process` and `run`.
+#include "daemon/pipeline.h"
+
+namespace sonomesh::daemon {
+namespace {
+
+nlohmann::json vec_json(const Vec3f& v) { return {v.x(), v.y(), v.z()}; }
+nlohmann::json vec_json(const Vec3i& v) { return {v.x(), v.y(), v.z()}; }
+
+}  // namespace
+
+Vec3i seed_index_of(const volume::Volume& input, const Vec3f& seed_mm) {
+  return input.mm_to_index(seed_mm).array().round().cast<int>();
+}
+
+nlohmann::json report_json(const PipelineResult& result, const std::string& input_name,
+                           const volume::Volume& input, const Vec3f& seed_mm) {
+  using nlohmann::json;
+  json report;
+  report["input"] = {{"path", input_name},
+                     {"dims", vec_json(input.dims())},
+                     {"spacing_mm", vec_json(input.spacing_mm())},
+                     {"origin_mm", vec_json(input.origin_mm())},
+                     {"type", volume::to_string(input.type())}};
+  report["seed"] = {{"index", vec_json(seed_index_of(input, seed_mm))}, {"mm", vec_json(seed_mm)}};
+  report["ok"] = result.ok;
+  if (!result.ok) report["error"] = result.error;
+  const StageTimings& t = result.timings;
+  report["timings_ms"] = {{"smooth", t.smooth_ms},       {"balloon", t.balloon_ms},
+                          {"opening", t.opening_ms},     {"reconstruct", t.reconstruct_ms},
+                          {"mesh", t.mesh_ms},           {"total", t.total_ms}};
+  const StopCounts& s = result.stop_counts;
+  report["balloon"] = {{"iterations", result.balloon_iterations},
+                       {"converged", result.balloon_converged},
+                       {"tau_cost", result.balloon_stats.tau_cost_used},
+                       {"vertices", result.balloon.vertices.size()},
+                       {"faces", result.balloon.triangles.size()},
+                       {"stop_reasons",
+                        {{"moving", s.moving},
+                         {"boundary", s.boundary},
+                         {"curvature", s.curvature},
+                         {"self_intersection", s.self_intersection},
+                         {"iteration_limit", s.iteration_limit}}},
+                       {"opened_points", result.opened_points}};
+  report["reconstruction"] = {{"grid", vec_json(result.grid_dims)},
+                              {"cell_mm", result.grid_cell_mm}};
+  report["mesh"] = {{"vertices", result.mesh.vertices.size()},
+                    {"faces", result.mesh.triangles.size()},
+                    {"components", result.topology.components},
+                    {"genus", result.topology.genus},
+                    {"watertight", result.topology.watertight},
+                    {"volume_ml", result.enclosed_volume_ml}};
+  if (result.deepest_interior_mm)
+    report["deepest_interior_mm"] = vec_json(*result.deepest_interior_mm);
+  return report;
+}
+
+}  // namespace sonomesh::daemon

@@ -1,0 +1,103 @@
+// Seed validation: is a point usable as the balloon's starting point in this volume?
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <cstdio>
+#include <string>
+
+#include "daemon/pipeline.h"
+
+namespace sonomesh::daemon {
+namespace {
+
+using volume::Vec3f;
+using volume::Vec3i;
+using volume::Volume;
+
+std::string format_point(const Vec3f& p) {
+  char buffer[96];
+  std::snprintf(buffer, sizeof buffer, "(%.2f, %.2f, %.2f)", p.x(), p.y(), p.z());
+  return buffer;
+}
+
+// Otsu's threshold on a subsampled histogram: splits the volume into the dark class (target,
+// background) and the bright class (tissue) whatever their proportions. Subsampling every second
+// voxel per axis keeps this at a few ms for 256³ and changes the threshold by less than a bin.
+float otsu_threshold(const Volume& input) {
+  const Vec3i d = input.dims();
+  const int step = input.voxel_count() > 200000 ? 2 : 1;
+  float lo = input.value(0, 0, 0), hi = lo;
+  for (int k = 0; k < d.z(); k += step)
+    for (int j = 0; j < d.y(); j += step)
+      for (int i = 0; i < d.x(); i += step) {
+        const float v = input.value(i, j, k);
+        lo = std::min(lo, v);
+        hi = std::max(hi, v);
+      }
+  if (!(hi > lo)) return hi;
+  constexpr int kBins = 256;
+  std::array<double, kBins> histogram{};
+  const float scale = (kBins - 1) / (hi - lo);
+  double total = 0.0;
+  for (int k = 0; k < d.z(); k += step)
+    for (int j = 0; j < d.y(); j += step)
+      for (int i = 0; i < d.x(); i += step) {
+        histogram[static_cast<int>((input.value(i, j, k) - lo) * scale)] += 1.0;
+        total += 1.0;
+      }
+  double sum_all = 0.0;
+  for (int b = 0; b < kBins; ++b) sum_all += b * histogram[b];
+  double weight_dark = 0.0, sum_dark = 0.0, best_variance = -1.0;
+  int best_bin = 0;
+  for (int b = 0; b < kBins; ++b) {
+    weight_dark += histogram[b];
+    sum_dark += b * histogram[b];
+    const double weight_bright = total - weight_dark;
+    if (weight_dark == 0.0 || weight_bright == 0.0) continue;
+    const double mean_dark = sum_dark / weight_dark;
+    const double mean_bright = (sum_all - sum_dark) / weight_bright;
+    const double variance = weight_dark * weight_bright * (mean_dark - mean_bright) *
+                            (mean_dark - mean_bright);
+    if (variance > best_variance) {
+      best_variance = variance;
+      best_bin = b;
+    }
+  }
+  return lo + (static_cast<float>(best_bin) + 0.5f) / scale;
+}
+
+}  // namespace
+
+std::optional<std::string> check_seed(const Volume& input, const Vec3f& seed_mm) {
+  if (input.empty()) return "the volume is empty";
+  if (!seed_mm.allFinite()) return "the seed is not a finite point";
+  if (!input.contains_mm(seed_mm))
+    return "seed " + format_point(seed_mm) + " mm is outside the volume " +
+           format_point(input.min_mm()) + ".." + format_point(input.max_mm()) + " mm";
+  // Mean over a 5³ neighbourhood: single speckle voxels are bright inside a dark cyst too, so the
+  // decision needs a local average, not one voxel.
+  const Vec3i centre = input.mm_to_index(seed_mm).array().round().cast<int>();
+  double sum = 0.0;
+  int count = 0;
+  for (int dk = -2; dk <= 2; ++dk)
+    for (int dj = -2; dj <= 2; ++dj)
+      for (int di = -2; di <= 2; ++di) {
+        const Vec3i p = centre + Vec3i(di, dj, dk);
+        if (!input.contains_index(p)) continue;
+        sum += input.value(p.x(), p.y(), p.z());
+        ++count;
+      }
+  const float local_mean = static_cast<float>(sum / std::max(count, 1));
+  const float threshold = otsu_threshold(input);
+  if (local_mean > threshold) {
+    char buffer[160];
+    std::snprintf(buffer, sizeof buffer,
+                  " mm lies in bright tissue (local mean %.1f above the target/tissue threshold "
+                  "%.1f); place it inside the dark target",
+                  local_mean, threshold);
+    return "seed " + format_point(seed_mm) + buffer;
+  }
+  return std::nullopt;
+}
+
+}  // namespace sonomesh::daemon

@@ -1,0 +1,94 @@
+#pragma once
+/// @file
+/// @brief The per-volume pipeline every sonomeshd mode runs: smooth, balloon, opening, Kazhdan
+/// reconstruction, marching cubes, topology, labels (DESIGN.md, docs/method.md).
+
+#include <nlohmann/json.hpp>
+#include <optional>
+#include <stop_token>
+#include <string>
+#include <vector>
+
+#include "reconstruct/reconstruct.h"
+#include "segment/mesh.h"
+#include "segment/segment.h"
+#include "volume/volume.h"
+
+namespace sonomesh::daemon {
+
+using volume::Vec3f;
+using volume::Vec3i;
+
+struct PipelineConfig {
+  /// Gaussian sigma of the pre-smoothing in mm. Unset: one voxel of the finest axis (0.5 mm on the
+  /// simulator's grid), which removes single-voxel speckle without moving walls by more than a
+  /// fraction of a voxel. 0 disables smoothing.
+  std::optional<float> smooth_sigma_mm;
+  segment::BalloonOptions balloon;
+  reconstruct::PoissonOptions poisson;
+  /// Reconstruct on a grid of the volume's finest voxel spacing (overrides poisson.cell_mm), as
+  /// method.md §5 asks; false keeps poisson.cell_mm.
+  bool cell_from_voxel = true;
+  bool want_labels = true;     // label volume on the input grid (inside = 1)
+  bool want_indicator = false; // the indicator function χ as a Float32 volume (for .vdb output)
+};
+
+/// Wall-clock time per stage in ms; `total` includes everything run_pipeline did.
+struct StageTimings {
+  double smooth_ms = 0, balloon_ms = 0, opening_ms = 0, reconstruct_ms = 0, mesh_ms = 0,
+         total_ms = 0;
+};
+
+/// Counts of balloon vertices per stop reason (segment::StopReason, the balloon PLY's codes).
+struct StopCounts {
+  int moving = 0, boundary = 0, curvature = 0, self_intersection = 0, iteration_limit = 0;
+};
+
+struct PipelineResult {
+  bool ok = false;
+  std::string error;  // one line, when !ok
+
+  segment::Mesh mesh;              // final closed surface, mm
+  reconstruct::Topology topology;  // of `mesh`
+  double enclosed_volume_ml = 0.0;
+
+  segment::Mesh balloon;                      // the balloon when evolution ended, mm
+  std::vector<segment::StopReason> balloon_stop;  // per balloon vertex
+  StopCounts stop_counts;
+  int balloon_iterations = 0;
+  bool balloon_converged = false;  // every vertex stopped or the evolution stalled
+  segment::BalloonStats balloon_stats;
+  int opened_points = 0;           // oriented samples left after the opening
+  Vec3i grid_dims = Vec3i::Zero(); // reconstruction grid
+  float grid_cell_mm = 0.0f;
+
+  StageTimings timings;
+  std::optional<volume::Volume> labels;     // UInt8 on the input grid, inside = 1
+  std::optional<volume::Volume> indicator;  // Float32 χ − iso on the reconstruction grid
+  /// The deepest point inside the result (maximum of the distance transform of the labels), for
+  /// the daemon's seed tracking. Only set when labels were computed.
+  std::optional<Vec3f> deepest_interior_mm;
+};
+
+/// Runs the whole pipeline on one volume. Numerical outcomes (a balloon that found nothing, a
+/// reconstruction without a surface around the seed, a stop request, a seed outside the volume)
+/// come back as ok = false with a one-line error. The seed is not checked for bright tissue here:
+/// callers run check_seed first (it costs a pass over the volume).
+PipelineResult run_pipeline(const volume::Volume& input, const Vec3f& seed_mm,
+                            const PipelineConfig& config, std::stop_token stop = {});
+
+/// Why `seed_mm` cannot start a balloon in `input` (outside the volume, or in bright tissue: the
+/// local mean around it is above the volume's Otsu threshold between dark target and tissue), or
+/// nullopt if it can. Used by `process` and by the daemon's seed tracking.
+std::optional<std::string> check_seed(const volume::Volume& input, const Vec3f& seed_mm);
+
+/// Nearest voxel index of a point in mm (rounded).
+Vec3i seed_index_of(const volume::Volume& input, const Vec3f& seed_mm);
+
+/// The report of DESIGN.md: input, seed (index and mm), stage timings in ms, balloon iterations
+/// and stop-reason counts, reconstruction grid size, output vertex/face counts, components, genus,
+/// watertight, enclosed volume in mL. `input_name` is the path or the daemon's sequence label.
+nlohmann::json report_json(const PipelineResult& result, const std::string& input_name,
+                           const volume::Volume& input, const Vec3f& seed_mm);
+
+}  // namespace sonomesh::daemon
