@@ -1,6 +1,7 @@
 // NRRD and MetaImage reading/writing: round trips, hand-written headers, malformed files.
 #include <gtest/gtest.h>
 
+#include <unistd.h>
 #include <zlib.h>
 
 #include <chrono>
@@ -161,4 +162,344 @@ TEST(NrrdWrite, HeaderCarriesLpsSpaceDirectionsAndOrigin) {
   EXPECT_NE(header.find("space directions: (0.5,0,0) (0,0.75,0) (0,0,1.25)"), std::string::npos) << header;
   EXPECT_NE(header.find("space origin: (-3,4.5,10.25)"), std::string::npos) << header;
   EXPECT_NE(header.find("sizes: 13 11 7"), std::string::npos) << header;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Hand-written headers: orientation handling.
+
+namespace {
+
+// A 3x2x2 volume whose file voxel (i, j, k) holds i + 3j + 6k.
+constexpr int kNx = 3, kNy = 2, kNz = 2;
+int file_value(int i, int j, int k) { return i + kNx * j + kNx * kNy * k; }
+
+std::string mha_header(const std::string& matrix, const std::string& extra = "",
+                       const std::string& type = "MET_UCHAR", const std::string& dims = "3 2 2",
+                       const std::string& data_file = "LOCAL") {
+  return "ObjectType = Image\nNDims = 3\nBinaryData = True\nBinaryDataByteOrderMSB = False\n" + extra +
+         "TransformMatrix = " + matrix + "\nOffset = 10 20 30\nElementSpacing = 1 2 3\nDimSize = " + dims +
+         "\nElementType = " + type + "\nElementDataFile = " + data_file + "\n";
+}
+
+std::string nrrd_header(const std::string& directions, const std::string& extra = "",
+                        const std::string& type = "uint8", const std::string& sizes = "3 2 2") {
+  return "NRRD0004\ntype: " + type + "\ndimension: 3\nspace: left-posterior-superior\nsizes: " + sizes +
+         "\nspace directions: " + directions + "\nkinds: domain domain domain\nendian: little\n" + extra +
+         "space origin: (10,20,30)\n";
+}
+
+// Every file voxel must be found at its physical position in the loaded volume.
+void expect_matches_file_geometry(const Volume& v, const Vec3f& file_origin, const Vec3f& axis_sign) {
+  ASSERT_EQ(v.dims(), Vec3i(kNx, kNy, kNz));
+  EXPECT_TRUE(v.spacing_mm().isApprox(Vec3f(1, 2, 3)));
+  for (int k = 0; k < kNz; ++k)
+    for (int j = 0; j < kNy; ++j)
+      for (int i = 0; i < kNx; ++i) {
+        const Vec3f p = file_origin + axis_sign.cwiseProduct(Vec3f(1, 2, 3)).cwiseProduct(Vec3f(i, j, k));
+        EXPECT_FLOAT_EQ(sample_mm(v, p), static_cast<float>(file_value(i, j, k))) << i << j << k;
+      }
+}
+
+}  // namespace
+
+TEST(MetaImageOrientation, FlippedAxesAreResolvedIntoData) {
+  TempDir dir;
+  const auto path = dir / "flip.mha";
+  write_file(path, mha_header("1 0 0 0 -1 0 0 0 -1") + bytes_0_to(12));
+  const auto r = read_volume(path);
+  ASSERT_TRUE(r) << r.error->message;
+  EXPECT_TRUE(r.volume.origin_mm().isApprox(Vec3f(10, 18, 27))) << r.volume.origin_mm().transpose();
+  // Data order: new (i, j, k) is file (i, 1 - j, 1 - k).
+  EXPECT_EQ(r.volume.value(0, 0, 0), file_value(0, 1, 1));
+  EXPECT_EQ(r.volume.value(2, 1, 1), file_value(2, 0, 0));
+  EXPECT_EQ(r.volume.value(1, 0, 1), file_value(1, 1, 0));
+  expect_matches_file_geometry(r.volume, Vec3f(10, 20, 30), Vec3f(1, -1, -1));
+
+  // Identity keeps the order; a flip along x alone works as well.
+  write_file(path, mha_header("1 0 0 0 1 0 0 0 1") + bytes_0_to(12));
+  const auto id = read_volume(path);
+  ASSERT_TRUE(id) << id.error->message;
+  EXPECT_TRUE(id.volume.origin_mm().isApprox(Vec3f(10, 20, 30)));
+  expect_matches_file_geometry(id.volume, Vec3f(10, 20, 30), Vec3f(1, 1, 1));
+  write_file(path, mha_header("-1 0 0 0 1 0 0 0 1") + bytes_0_to(12));
+  const auto fx = read_volume(path);
+  ASSERT_TRUE(fx) << fx.error->message;
+  expect_matches_file_geometry(fx.volume, Vec3f(10, 20, 30), Vec3f(-1, 1, 1));
+}
+
+TEST(MetaImageOrientation, ObliqueAndPermutedMatricesAreRefused) {
+  TempDir dir;
+  const auto path = dir / "oblique.mha";
+  write_file(path, mha_header("0.70710678 0.70710678 0 -0.70710678 0.70710678 0 0 0 1") + bytes_0_to(12));
+  expect_error(path, Code::UnsupportedOrientation);
+  write_file(path, mha_header("0 1 0 1 0 0 0 0 1") + bytes_0_to(12));
+  expect_error(path, Code::UnsupportedOrientation);
+}
+
+TEST(NrrdOrientation, NegativeSpaceDirectionFlipsData) {
+  TempDir dir;
+  const auto path = dir / "flip.nrrd";
+  write_file(path, nrrd_header("(1,0,0) (0,-2,0) (0,0,3)") + "encoding: raw\n\n" + bytes_0_to(12));
+  const auto r = read_volume(path);
+  ASSERT_TRUE(r) << r.error->message;
+  EXPECT_TRUE(r.volume.origin_mm().isApprox(Vec3f(10, 18, 30))) << r.volume.origin_mm().transpose();
+  EXPECT_EQ(r.volume.value(0, 0, 0), file_value(0, 1, 0));
+  expect_matches_file_geometry(r.volume, Vec3f(10, 20, 30), Vec3f(1, -1, 1));
+}
+
+TEST(NrrdOrientation, RasSpaceIsConvertedToLps) {
+  TempDir dir;
+  const auto path = dir / "ras.nrrd";
+  std::string h = nrrd_header("(1,0,0) (0,2,0) (0,0,3)") + "encoding: raw\n\n" + bytes_0_to(12);
+  h.replace(h.find("left-posterior-superior"), 23, "right-anterior-superior");
+  write_file(path, h);
+  const auto r = read_volume(path);
+  ASSERT_TRUE(r) << r.error->message;
+  // RAS (x, y, z) is LPS (-x, -y, z): both in-plane axes now point the other way.
+  expect_matches_file_geometry(r.volume, Vec3f(-10, -20, 30), Vec3f(-1, -1, 1));
+}
+
+TEST(NrrdOrientation, ObliqueDirectionsAreRefused) {
+  TempDir dir;
+  const auto path = dir / "oblique.nrrd";
+  write_file(path, nrrd_header("(0.8,0.6,0) (-1.2,1.6,0) (0,0,3)") + "encoding: raw\n\n" + bytes_0_to(12));
+  expect_error(path, Code::UnsupportedOrientation);
+}
+
+TEST(NrrdRead, DetachedHeaderWithGzipDataAndPlainSpacings) {
+  TempDir dir;
+  // gzip file written by zlib's gz* API, referenced from a hand-written detached header.
+  const std::string data = bytes_0_to(12);
+  gzFile gz = gzopen((dir / "d.raw.gz").c_str(), "wb");
+  gzwrite(gz, data.data(), static_cast<unsigned>(data.size()));
+  gzclose(gz);
+  write_file(dir / "d.nhdr", "NRRD0004\ntype: unsigned char\ndimension: 3\nsizes: 3 2 2\n"
+                             "spacings: 1 2 3\nencoding: gzip\ndata file: d.raw.gz\n");
+  const auto r = read_volume(dir / "d.nhdr");
+  ASSERT_TRUE(r) << r.error->message;
+  EXPECT_TRUE(r.volume.origin_mm().isApprox(Vec3f(0, 0, 0)));
+  expect_matches_file_geometry(r.volume, Vec3f(0, 0, 0), Vec3f(1, 1, 1));
+}
+
+TEST(MetaImageRead, DetachedRawAndZlibAttachedAndBigEndianAndShortConversion) {
+  TempDir dir;
+  write_file(dir / "d.raw", bytes_0_to(12));
+  write_file(dir / "d.mhd", mha_header("1 0 0 0 1 0 0 0 1", "", "MET_UCHAR", "3 2 2", "d.raw"));
+  const auto r = read_volume(dir / "d.mhd");
+  ASSERT_TRUE(r) << r.error->message;
+  expect_matches_file_geometry(r.volume, Vec3f(10, 20, 30), Vec3f(1, 1, 1));
+
+  const std::string z = zlib_compress(bytes_0_to(12));
+  write_file(dir / "z.mha", mha_header("1 0 0 0 1 0 0 0 1", "CompressedData = True\nCompressedDataSize = " +
+                                                              std::to_string(z.size()) + "\n") + z);
+  const auto rz = read_volume(dir / "z.mha");
+  ASSERT_TRUE(rz) << rz.error->message;
+  expect_matches_file_geometry(rz.volume, Vec3f(10, 20, 30), Vec3f(1, 1, 1));
+
+  // Big-endian uint16: bytes (0, v) per voxel.
+  std::string be;
+  for (int n = 0; n < 12; ++n) be += std::string{'\0', static_cast<char>(n)};
+  std::string h = mha_header("1 0 0 0 1 0 0 0 1", "", "MET_USHORT");
+  h.replace(h.find("BinaryDataByteOrderMSB = False"), 30, "BinaryDataByteOrderMSB = True");
+  write_file(dir / "be.mha", h + be);
+  const auto rbe = read_volume(dir / "be.mha");
+  ASSERT_TRUE(rbe) << rbe.error->message;
+  ASSERT_EQ(rbe.volume.type(), VoxelType::UInt16);
+  expect_matches_file_geometry(rbe.volume, Vec3f(10, 20, 30), Vec3f(1, 1, 1));
+
+  // Signed shorts are converted to float, negative values kept.
+  std::string le;
+  for (int n = 0; n < 12; ++n) {
+    const std::int16_t v = static_cast<std::int16_t>(-n);
+    le.append(reinterpret_cast<const char*>(&v), 2);
+  }
+  write_file(dir / "s.mha", mha_header("1 0 0 0 1 0 0 0 1", "", "MET_SHORT") + le);
+  const auto rs = read_volume(dir / "s.mha");
+  ASSERT_TRUE(rs) << rs.error->message;
+  ASSERT_EQ(rs.volume.type(), VoxelType::Float32);
+  EXPECT_EQ(rs.volume.value(2, 1, 1), -11.0f);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Malformed files: each gets its own code and a one-line message; nothing crashes.
+
+TEST(Malformed, MissingFileAndUnknownExtension) {
+  TempDir dir;
+  expect_error(dir / "nothing.nrrd", Code::NotFound);
+  expect_error(dir / "nothing.mha", Code::NotFound);
+  write_file(dir / "vol.tiff", "II*");
+  expect_error(dir / "vol.tiff", Code::UnknownFormat);
+}
+
+TEST(Malformed, RandomBytesAreUnknownFormat) {
+  TempDir dir;
+  std::mt19937 rng(5);
+  std::string junk(4096, '\0');
+  for (char& c : junk) c = static_cast<char>(rng());
+  write_file(dir / "junk.nrrd", junk);
+  write_file(dir / "junk.mha", junk);
+  write_file(dir / "junk.nhdr", junk);
+  write_file(dir / "junk.mhd", junk);
+  expect_error(dir / "junk.nrrd", Code::UnknownFormat);
+  expect_error(dir / "junk.nhdr", Code::UnknownFormat);
+  expect_error(dir / "junk.mha", Code::UnknownFormat);
+  expect_error(dir / "junk.mhd", Code::UnknownFormat);
+  write_file(dir / "empty.nrrd", "");
+  write_file(dir / "empty.mha", "");
+  expect_error(dir / "empty.nrrd", Code::UnknownFormat);
+  expect_error(dir / "empty.mha", Code::UnknownFormat);
+}
+
+TEST(Malformed, TruncatedData) {
+  TempDir dir;
+  const Volume v = random_volume(VoxelType::UInt16);
+  for (const std::string name : {"t.nrrd", "t.mha"}) {
+    ASSERT_FALSE(write_volume(v, dir / name).has_value());
+    fs::resize_file(dir / name, fs::file_size(dir / name) - 100);
+    expect_error(dir / name, Code::TruncatedData);
+  }
+  ASSERT_FALSE(write_volume(v, dir / "t.mhd").has_value());
+  fs::resize_file(dir / "t.raw", 10);
+  expect_error(dir / "t.mhd", Code::TruncatedData);
+  ASSERT_FALSE(write_volume(v, dir / "t2.nhdr").has_value());
+  fs::resize_file(dir / "t2.raw", 10);
+  expect_error(dir / "t2.nhdr", Code::TruncatedData);
+  // Compressed payload cut in half: CompressedDataSize promises more than is there.
+  ASSERT_FALSE(write_volume(v, dir / "tz.mha", Compression::Gzip).has_value());
+  fs::resize_file(dir / "tz.mha", fs::file_size(dir / "tz.mha") - 200);
+  expect_error(dir / "tz.mha", Code::TruncatedData);
+  // A zlib stream that decodes to fewer voxels than the header announces.
+  const std::string z = zlib_compress(bytes_0_to(6));
+  write_file(dir / "short.mha", mha_header("1 0 0 0 1 0 0 0 1", "CompressedData = True\n") + z);
+  expect_error(dir / "short.mha", Code::TruncatedData);
+}
+
+TEST(Malformed, SizesThatDoNotMatch) {
+  TempDir dir;
+  // Detached data larger than the header's dimensions.
+  write_file(dir / "big.raw", bytes_0_to(20));
+  write_file(dir / "big.mhd", mha_header("1 0 0 0 1 0 0 0 1", "", "MET_UCHAR", "3 2 2", "big.raw"));
+  expect_error(dir / "big.mhd", Code::SizeMismatch);
+  write_file(dir / "big.nhdr", nrrd_header("(1,0,0) (0,2,0) (0,0,3)") + "encoding: raw\ndata file: big.raw\n");
+  expect_error(dir / "big.nhdr", Code::SizeMismatch);
+  // Attached data with trailing bytes.
+  write_file(dir / "big.mha", mha_header("1 0 0 0 1 0 0 0 1") + bytes_0_to(13));
+  expect_error(dir / "big.mha", Code::SizeMismatch);
+  // DimSize with two values for NDims 3.
+  write_file(dir / "dims.mha", mha_header("1 0 0 0 1 0 0 0 1", "", "MET_UCHAR", "3 4") + bytes_0_to(12));
+  expect_error(dir / "dims.mha", Code::SizeMismatch);
+  // A zlib stream holding more voxels than announced.
+  const std::string z = zlib_compress(bytes_0_to(24));
+  write_file(dir / "zbig.mha", mha_header("1 0 0 0 1 0 0 0 1", "CompressedData = True\n") + z);
+  expect_error(dir / "zbig.mha", Code::SizeMismatch);
+}
+
+TEST(Malformed, UnknownVoxelTypes) {
+  TempDir dir;
+  write_file(dir / "t.mha", mha_header("1 0 0 0 1 0 0 0 1", "", "MET_FOO") + bytes_0_to(12));
+  expect_error(dir / "t.mha", Code::UnsupportedType);
+  write_file(dir / "t.nrrd", nrrd_header("(1,0,0) (0,2,0) (0,0,3)", "", "quaternion") + "encoding: raw\n\n" +
+                                 bytes_0_to(12));
+  expect_error(dir / "t.nrrd", Code::UnsupportedType);
+  write_file(dir / "rgb.mha", mha_header("1 0 0 0 1 0 0 0 1", "ElementNumberOfChannels = 3\n") + bytes_0_to(36));
+  expect_error(dir / "rgb.mha", Code::UnsupportedType);
+}
+
+TEST(Malformed, AbsurdDimensionsFailBeforeAllocating) {
+  TempDir dir;
+  // 10^15 voxels: over the voxel limit.
+  write_file(dir / "huge.mha", mha_header("1 0 0 0 1 0 0 0 1", "", "MET_FLOAT", "100000 100000 100000") +
+                                   bytes_0_to(12));
+  write_file(dir / "huge.nrrd", nrrd_header("(1,0,0) (0,2,0) (0,0,3)", "", "float", "100000 100000 100000") +
+                                    "encoding: raw\n\n" + bytes_0_to(12));
+  const auto t0 = std::chrono::steady_clock::now();
+  expect_error(dir / "huge.mha", Code::BadDimensions);
+  expect_error(dir / "huge.nrrd", Code::BadDimensions);
+  // 10^9 voxels is within the default limit, but the file holds 12 bytes: refused from the file
+  // size, again before any allocation.
+  write_file(dir / "big.mha", mha_header("1 0 0 0 1 0 0 0 1", "", "MET_UCHAR", "1000 1000 1000") + bytes_0_to(12));
+  write_file(dir / "big.nrrd", nrrd_header("(1,0,0) (0,2,0) (0,0,3)", "", "uint8", "1000 1000 1000") +
+                                   "encoding: raw\n\n" + bytes_0_to(12));
+  write_file(dir / "bigz.mha", mha_header("1 0 0 0 1 0 0 0 1", "CompressedData = True\n", "MET_UCHAR",
+                                          "1000 1000 1000") + zlib_compress(bytes_0_to(12)));
+  expect_error(dir / "big.mha", Code::TruncatedData);
+  expect_error(dir / "big.nrrd", Code::TruncatedData);
+  expect_error(dir / "bigz.mha", Code::TruncatedData);
+  // Allocating and filling gigabytes would take far longer than this.
+  EXPECT_LT(std::chrono::steady_clock::now() - t0, std::chrono::seconds(2));
+  // Non-positive and overflowing sizes; a custom lower limit.
+  write_file(dir / "neg.mha", mha_header("1 0 0 0 1 0 0 0 1", "", "MET_UCHAR", "3 -2 2") + bytes_0_to(12));
+  expect_error(dir / "neg.mha", Code::BadDimensions);
+  write_file(dir / "zero.nrrd", nrrd_header("(1,0,0) (0,2,0) (0,0,3)", "", "uint8", "3 0 2") + "encoding: raw\n\n");
+  const auto rz = read_volume(dir / "zero.nrrd");
+  EXPECT_FALSE(rz);
+  write_file(dir / "ovf.mha", mha_header("1 0 0 0 1 0 0 0 1", "", "MET_UCHAR", "4294967296 4294967296 4294967296") +
+                                  bytes_0_to(12));
+  expect_error(dir / "ovf.mha", Code::BadDimensions);
+  write_file(dir / "ok.mha", mha_header("1 0 0 0 1 0 0 0 1") + bytes_0_to(12));
+  ReadOptions tight;
+  tight.max_voxels = 11;
+  expect_error(dir / "ok.mha", Code::BadDimensions, tight);
+  write_file(dir / "twod.mha", "ObjectType = Image\nNDims = 2\nDimSize = 3 4\nElementType = MET_UCHAR\n"
+                               "ElementDataFile = LOCAL\n" + bytes_0_to(12));
+  expect_error(dir / "twod.mha", Code::BadDimensions);
+}
+
+TEST(Malformed, MissingDetachedDataFile) {
+  TempDir dir;
+  write_file(dir / "m.mhd", mha_header("1 0 0 0 1 0 0 0 1", "", "MET_UCHAR", "3 2 2", "gone.raw"));
+  expect_error(dir / "m.mhd", Code::NotFound);
+  write_file(dir / "m.nhdr", nrrd_header("(1,0,0) (0,2,0) (0,0,3)") + "encoding: raw\ndata file: gone.raw\n");
+  expect_error(dir / "m.nhdr", Code::NotFound);
+}
+
+TEST(Malformed, CorruptCompressedData) {
+  TempDir dir;
+  std::string junk(64, '\0');
+  std::mt19937 rng(9);
+  for (char& c : junk) c = static_cast<char>(rng());
+  write_file(dir / "bad.mha", mha_header("1 0 0 0 1 0 0 0 1", "CompressedData = True\n") + junk);
+  expect_error(dir / "bad.mha", Code::Compression);
+  write_file(dir / "bad.nrrd", nrrd_header("(1,0,0) (0,2,0) (0,0,3)") + "encoding: gzip\n\n" + junk);
+  expect_error(dir / "bad.nrrd", Code::Compression);
+  // A valid gzip header followed by garbage.
+  std::string gz_head = "\x1f\x8b\x08\x00\x00\x00\x00\x00\x00\x03";
+  write_file(dir / "bad2.nrrd", nrrd_header("(1,0,0) (0,2,0) (0,0,3)") + "encoding: gzip\n\n" + gz_head + junk);
+  expect_error(dir / "bad2.nrrd", Code::Compression);
+}
+
+TEST(Malformed, BadHeaders) {
+  TempDir dir;
+  write_file(dir / "nodims.mha", "ObjectType = Image\nNDims = 3\nElementType = MET_UCHAR\nElementDataFile = LOCAL\n");
+  expect_error(dir / "nodims.mha", Code::BadHeader);
+  write_file(dir / "noend.mha", "ObjectType = Image\nNDims = 3\nDimSize = 3 2 2\n");
+  expect_error(dir / "noend.mha", Code::BadHeader);
+  write_file(dir / "text.mha", mha_header("1 0 0 0 1 0 0 0 1", "", "MET_UCHAR", "3 x 2") + bytes_0_to(12));
+  expect_error(dir / "text.mha", Code::BadHeader);
+  write_file(dir / "sp.mha", "ObjectType = Image\nNDims = 3\nDimSize = 3 2 2\nElementSpacing = 1 0 1\n"
+                             "ElementType = MET_UCHAR\nElementDataFile = LOCAL\n" + bytes_0_to(12));
+  expect_error(dir / "sp.mha", Code::BadHeader);
+  write_file(dir / "bad.nrrd", "NRRD0004\ntype: uint8\ndimension: 3\nsizes: 3 2\nencoding: raw\n\n" + bytes_0_to(12));
+  const auto r = read_volume(dir / "bad.nrrd");
+  ASSERT_FALSE(r);
+  EXPECT_EQ(r.error->message.find('\n'), std::string::npos);
+  write_file(dir / "fourd.nrrd", "NRRD0004\ntype: uint8\ndimension: 4\nsizes: 3 2 2 1\nencoding: raw\n\n" +
+                                     bytes_0_to(12));
+  expect_error(dir / "fourd.nrrd", Code::BadDimensions);
+}
+
+TEST(Write, ErrorsAreValues) {
+  TempDir dir;
+  const Volume v = random_volume(VoxelType::UInt8);
+  const auto a = write_volume(v, dir / "no_such_dir" / "x.nrrd");
+  ASSERT_TRUE(a.has_value());
+  EXPECT_EQ(a->code, Code::IoError);
+  EXPECT_EQ(a->message.find('\n'), std::string::npos) << a->message;
+  const auto b = write_volume(v, dir / "no_such_dir" / "x.mha");
+  ASSERT_TRUE(b.has_value());
+  EXPECT_EQ(b->code, Code::IoError);
+  const auto c = write_volume(v, dir / "x.png");
+  ASSERT_TRUE(c.has_value());
+  EXPECT_EQ(c->code, Code::UnknownFormat);
+  EXPECT_TRUE(write_volume(Volume{}, dir / "e.nrrd").has_value());
 }

@@ -56,6 +56,7 @@ using IoStatePtr = std::unique_ptr<NrrdIoState, IoStateDeleter>;
 struct HeaderScan {
   std::uintmax_t header_bytes = 0;  // offset of the attached data (after the blank line)
   bool has_end = false;             // saw the blank line that ends the header
+  std::string data_file;            // "data file:" value, if any
 };
 
 std::optional<VolumeIoError> scan_header(const std::filesystem::path& path, HeaderScan& scan) {
@@ -86,6 +87,12 @@ std::optional<VolumeIoError> scan_header(const std::filesystem::path& path, Head
       if (airEnumVal(nrrdType, value.c_str()) == nrrdTypeUnknown)
         return io_error(Code::UnsupportedType, path, "unknown voxel type '" + value + "'");
     }
+    for (const char* key : {"data file:", "datafile:"})
+      if (line.rfind(key, 0) == 0) {
+        scan.data_file = line.substr(std::strlen(key));
+        scan.data_file.erase(0, scan.data_file.find_first_not_of(' '));
+        while (!scan.data_file.empty() && scan.data_file.back() == ' ') scan.data_file.pop_back();
+      }
     for (char c : line)
       if (c == '\0') return io_error(Code::BadHeader, path, "binary bytes inside the header");
   }
@@ -156,6 +163,15 @@ VolumeReadResult read_nrrd(const std::filesystem::path& path, const ReadOptions&
   HeaderScan scan;
   if (auto err = scan_header(path, scan)) return {Volume{}, err};
 
+  // Teem opens a single detached data file even when skipping data; say clearly that it is missing.
+  if (!scan.data_file.empty() && scan.data_file.find(' ') == std::string::npos &&
+      scan.data_file.find('%') == std::string::npos && scan.data_file != "LIST") {
+    std::filesystem::path data = scan.data_file;
+    if (data.is_relative()) data = path.parent_path() / data;
+    if (!data_file_size(data))
+      return {Volume{}, io_error(Code::NotFound, path, "data file " + data.string() + " is missing")};
+  }
+
   std::lock_guard<std::mutex> lock(teem_mutex());
   // Pass 1: header only.
   NrrdPtr header(nrrdNew());
@@ -184,6 +200,8 @@ VolumeReadResult read_nrrd(const std::filesystem::path& path, const ReadOptions&
   const std::uintmax_t expected = voxels * nrrdTypeSize[h->type];
   const NrrdEncoding* enc = hio->encoding;
   std::uintmax_t available = 0;
+  std::filesystem::path first_data = path;  // where the payload starts (attached: after header)
+  std::uintmax_t first_offset = scan.header_bytes;
   bool exact = hio->lineSkip == 0 && hio->byteSkip == 0 && hio->dataFSkip == nullptr;
   const unsigned files = hio->dataFNArr ? hio->dataFNArr->len : 0;
   if (files == 0 && !hio->dataFNFormat) {
@@ -199,6 +217,7 @@ VolumeReadResult read_nrrd(const std::filesystem::path& path, const ReadOptions&
       if (!size)
         return {Volume{}, io_error(Code::NotFound, path, "data file " + data.string() + " is missing")};
       available += *size;
+      if (f == 0) first_data = data, first_offset = 0;
     }
   } else {
     exact = false;
@@ -217,6 +236,15 @@ VolumeReadResult read_nrrd(const std::filesystem::path& path, const ReadOptions&
     if (!enc->available())
       return {Volume{}, io_error(Code::Compression, path,
                                  std::string(enc->name) + " encoding not available in this Teem")};
+    // zlib's gz reader passes data without a gzip header through unchanged, so check the magic.
+    if (enc == nrrdEncodingGzip && exact && available >= 2) {
+      unsigned char magic[2] = {0, 0};
+      std::ifstream in(first_data, std::ios::binary);
+      in.seekg(static_cast<std::streamoff>(first_offset));
+      in.read(reinterpret_cast<char*>(magic), 2);
+      if (magic[0] != 0x1f || magic[1] != 0x8b)
+        return {Volume{}, io_error(Code::Compression, path, "gzip encoding, but the data is not gzip")};
+    }
     if (available * kMaxDeflateRatio + 1024 < expected)
       return {Volume{}, io_error(Code::TruncatedData, path,
                                  "compressed data of " + std::to_string(available) +

@@ -131,14 +131,19 @@ Volume smooth_gaussian(const Volume& input, float sigma_mm) {
       cv::sepFilter2D(src, dst, CV_32F, kx, ky, cv::Point(-1, -1), 0.0, cv::BORDER_REPLICATE);
     }
   });
-  // Pass 2: z. For a fixed j the voxels (i, j, k) form an nz x nx image whose rows are one slice
-  // apart in memory, so a strided cv::Mat view filters along z without any transpose.
-  cv::parallel_for_(cv::Range(0, ny), [&](const cv::Range& r) {
-    const std::size_t step = slice * sizeof(float);
-    for (int j = r.start; j < r.end; ++j) {
-      const cv::Mat src(nz, nx, CV_32F, tmp_data + static_cast<std::size_t>(j) * nx, step);
-      cv::Mat dst(nz, nx, CV_32F, out_data + static_cast<std::size_t>(j) * nx, step);
-      cv::sepFilter2D(src, dst, CV_32F, one, kz, cv::Point(-1, -1), 0.0, cv::BORDER_REPLICATE);
+  // Pass 2: z. Viewed as an nz x (nx*ny) image (one row per slice), the z-filter is a plain
+  // vertical filter; column chunks keep each thread's rows short enough to stay in cache.
+  const int cols = static_cast<int>(slice);
+  const int chunk = std::min(cols, 2048);
+  const int chunks = (cols + chunk - 1) / chunk;
+  const cv::Mat tmp_all(nz, cols, CV_32F, tmp_data);
+  cv::Mat out_all(nz, cols, CV_32F, out_data);
+  cv::parallel_for_(cv::Range(0, chunks), [&](const cv::Range& r) {
+    for (int c = r.start; c < r.end; ++c) {
+      const cv::Range range(c * chunk, std::min(cols, (c + 1) * chunk));
+      cv::Mat dst = out_all.colRange(range);
+      cv::sepFilter2D(tmp_all.colRange(range), dst, CV_32F, one, kz, cv::Point(-1, -1), 0.0,
+                      cv::BORDER_REPLICATE | cv::BORDER_ISOLATED);
     }
   });
   return out;
