@@ -24,7 +24,11 @@ struct PhantomSpec {
   float attenuation_db_per_cm = 0.5f;  // attenuation with depth (z) in dB/cm (round trip)
   std::uint32_t seed = 1;          // random seed: same seed, same bytes
   float time_s = 0.0f;             // breathing phase for streamed phantoms: moves/deforms a little
-  Vec3f axis{0.0f, 0.0f, 1.0f};    // orientation of the torus / needle / ellipsoid major axis
+  Vec3f axis{0.0f, 0.0f, 1.0f};    // orientation of the torus / ellipsoid / cyst major axis
+  // Direction the biopsy needle points (cyst-needle only), from entry towards its tip. Default:
+  // 30 degrees below lateral, as a needle guided into the beam; a needle along the beam (z) would
+  // cast its shadow into itself and show nothing a probe could see.
+  Vec3f needle_axis{0.866f, 0.0f, 0.5f};
 };
 
 /// A phantom: the image a probe would deliver and its ground truth.

@@ -1,0 +1,178 @@
+#include <algorithm>
+#include <cmath>
+#include <stdexcept>
+
+#include "sim/internal/edt.h"
+#include "sim/internal/parallel.h"
+#include "sim/internal/shapes.h"
+#include "sim/internal/speckle.h"
+#include "sim/sim.h"
+
+namespace sonomesh::sim {
+namespace {
+
+using internal::Shape;
+
+// Image model constants. Tissue sits at ~120 grey levels at mid depth: headroom for speckle peaks
+// and a needle that saturates near 255.
+constexpr float kTissueLevel = 120.0f;
+constexpr float kNeedleEcho = 2.4f;       // needle brightness relative to tissue (saturates)
+constexpr float kNeedleSpeckleKeep = 0.3f;  // a specular needle is less speckled than tissue
+constexpr float kShadowFloor = 0.2f;      // scatter fills the shadow a little
+
+float smoothstep01(float x) {
+  x = std::clamp(x, 0.0f, 1.0f);
+  return x * x * (3.0f - 2.0f * x);
+}
+
+void validate(const PhantomSpec& spec) {
+  auto bad = [](const std::string& what) { throw std::invalid_argument("PhantomSpec." + what); };
+  if (spec.size_vox < 16) bad("size_vox must be at least 16 (got " + std::to_string(spec.size_vox) + ")");
+  if (spec.size_vox > 512) bad("size_vox must be at most 512 (got " + std::to_string(spec.size_vox) + ")");
+  if (!spec.spacing_mm.allFinite() || !(spec.spacing_mm.array() > 0.0f).all())
+    bad("spacing_mm must be positive");
+  if (!(spec.contrast >= 0.0f && spec.contrast <= 1.0f)) bad("contrast must be in [0, 1]");
+  if (!(spec.speckle >= 0.0f && spec.speckle <= 1.0f)) bad("speckle must be in [0, 1]");
+  if (!(spec.attenuation_db_per_cm >= 0.0f && spec.attenuation_db_per_cm <= 20.0f))
+    bad("attenuation_db_per_cm must be in [0, 20]");
+  if (!std::isfinite(spec.time_s)) bad("time_s must be finite");
+}
+
+}  // namespace
+
+const std::vector<std::string>& phantom_names() {
+  static const std::vector<std::string> names{"sphere", "ellipsoid", "torus", "cyst-needle",
+                                              "double-torus"};
+  return names;
+}
+
+Phantom make_phantom(const PhantomSpec& spec) {
+  validate(spec);
+  const Vec3i dims = Vec3i::Constant(spec.size_vox);
+  const Vec3f origin_mm = Vec3f::Zero();  // z = 0 is the transducer face: depth grows with k
+  const Shape shape(spec, origin_mm);
+
+  Phantom out;
+  out.name = spec.phantom;
+  out.genus = internal::shape_genus(shape.kind());
+  out.image = volume::Volume(dims, spec.spacing_mm, origin_mm, volume::VoxelType::UInt8);
+  out.truth = volume::Volume(dims, spec.spacing_mm, origin_mm, volume::VoxelType::UInt8);
+
+  const auto speckle = spec.speckle > 0.0f ? internal::speckle_field(spec.seed, dims) : nullptr;
+  const int nx = dims.x(), ny = dims.y(), nz = dims.z();
+  const std::size_t slice = static_cast<std::size_t>(nx) * ny;
+  const Vec3f h = spec.spacing_mm;
+  // Partial-volume edge: the echo ramps over about one voxel across the surface.
+  const float edge_mm = 0.6f * h.minCoeff();
+  // Round-trip attenuation in amplitude, renormalised so that mid depth sits at kTissueLevel.
+  const float db_per_mm = spec.attenuation_db_per_cm / 10.0f;
+  const float mid_depth_mm = 0.5f * h.z() * static_cast<float>(nz - 1);
+  const float gain = kTissueLevel * std::pow(10.0f, db_per_mm * mid_depth_mm / 20.0f);
+  const bool needle = shape.has_needle();
+  // Needle absorption per mm of path so that crossing its diameter vertically leaves ~30%.
+  const float needle_absorb_per_mm =
+      needle ? 1.2f / (2.0f * shape.needle_at_time()->radius_mm) : 0.0f;
+
+  auto& img = out.image.u8();
+  auto& truth = out.truth.u8();
+  std::vector<float> level(needle ? img.size() : 0);    // before the shadow, when there is one
+  std::vector<float> needle_w(needle ? img.size() : 0);  // needle occupancy 0..1
+
+  internal::parallel_chunks(0, nz, [&](int k0, int k1) {
+    for (int k = k0; k < k1; ++k) {
+      const float z_mm = origin_mm.z() + h.z() * static_cast<float>(k);
+      const float att = gain * std::pow(10.0f, -db_per_mm * (z_mm - origin_mm.z()) / 20.0f);
+      for (int j = 0; j < ny; ++j)
+        for (int i = 0; i < nx; ++i) {
+          const std::size_t idx = static_cast<std::size_t>(k) * slice + static_cast<std::size_t>(j) * nx + i;
+          const Vec3f p(origin_mm.x() + h.x() * static_cast<float>(i),
+                        origin_mm.y() + h.y() * static_cast<float>(j), z_mm);
+          const float sdf = shape.target_sdf_mm(p);
+          truth[idx] = sdf < 0.0f ? 1 : 0;
+          const float inside = smoothstep01(0.5f - sdf / (2.0f * edge_mm));
+          float echo = 1.0f - spec.contrast * inside;
+          float speckle_strength = spec.speckle;
+          float wn = 0.0f;
+          if (needle) {
+            wn = smoothstep01(0.5f - shape.needle_sdf_mm(p) / (2.0f * edge_mm));
+            echo = echo * (1.0f - wn) + kNeedleEcho * wn;
+            speckle_strength *= 1.0f - (1.0f - kNeedleSpeckleKeep) * wn;
+          }
+          const float grain = speckle ? (1.0f - speckle_strength + speckle_strength * (*speckle)[idx]) : 1.0f;
+          const float v = att * echo * grain;
+          if (needle) {
+            level[idx] = v;
+            needle_w[idx] = wn;
+          } else {
+            img[idx] = static_cast<std::uint8_t>(std::clamp(std::lround(v), 0L, 255L));
+          }
+        }
+    }
+  });
+
+  if (needle) {
+    // Acoustic shadow: the needle absorbs the beam, so everything deeper along +z in the same
+    // column is darker. Columns are independent; walk each one from the transducer down.
+    internal::parallel_chunks(0, ny, [&](int j0, int j1) {
+      std::vector<float> trans(nx);
+      for (int j = j0; j < j1; ++j) {
+        std::fill(trans.begin(), trans.end(), 1.0f);
+        for (int k = 0; k < nz; ++k)
+          for (int i = 0; i < nx; ++i) {
+            const std::size_t idx = static_cast<std::size_t>(k) * slice + static_cast<std::size_t>(j) * nx + i;
+            const float v = level[idx] * std::max(trans[i], kShadowFloor);
+            img[idx] = static_cast<std::uint8_t>(std::clamp(std::lround(v), 0L, 255L));
+            trans[i] *= std::exp(-needle_absorb_per_mm * needle_w[idx] * h.z());
+          }
+      }
+    });
+  }
+
+  // Seed: the deepest voxel of the target (largest distance to the background); ties go to the
+  // lowest linear index so the choice is deterministic.
+  const std::vector<float> d2 = internal::squared_distance_inside_mm2(out.truth);
+  std::size_t best = 0;
+  float best_d2 = -1.0f;
+  for (std::size_t t = 0; t < d2.size(); ++t)
+    if (truth[t] && d2[t] > best_d2) {
+      best_d2 = d2[t];
+      best = t;
+    }
+  if (best_d2 < 0.0f)
+    throw std::invalid_argument("PhantomSpec: the target has no voxel at this size/spacing");
+  out.seed_index = Vec3i(static_cast<int>(best % nx), static_cast<int>((best / nx) % ny),
+                         static_cast<int>(best / slice));
+  out.seed_mm = out.image.index_to_mm(out.seed_index.cast<float>());
+  return out;
+}
+
+acquire::RawVolume to_raw(const volume::Volume& image, std::uint64_t sequence,
+                          std::uint64_t timestamp_ns) {
+  acquire::RawVolume raw;
+  raw.sequence = sequence;
+  raw.timestamp_ns = timestamp_ns;
+  raw.dims = {image.dims().x(), image.dims().y(), image.dims().z()};
+  raw.spacing_mm = {image.spacing_mm().x(), image.spacing_mm().y(), image.spacing_mm().z()};
+  raw.origin_mm = {image.origin_mm().x(), image.origin_mm().y(), image.origin_mm().z()};
+  switch (image.type()) {
+    case volume::VoxelType::UInt8:
+      raw.type = acquire::ProbeVoxelType::UInt8;
+      raw.voxels = image.u8();
+      break;
+    case volume::VoxelType::UInt16: {
+      raw.type = acquire::ProbeVoxelType::UInt16;
+      const auto& src = image.u16();
+      raw.voxels.resize(2 * src.size());
+      for (std::size_t t = 0; t < src.size(); ++t) {  // the protocol is little endian
+        raw.voxels[2 * t] = static_cast<std::uint8_t>(src[t] & 0xFF);
+        raw.voxels[2 * t + 1] = static_cast<std::uint8_t>(src[t] >> 8);
+      }
+      break;
+    }
+    case volume::VoxelType::Float32:
+      throw std::invalid_argument("to_raw: a probe delivers uint8 or uint16, not float32");
+  }
+  return raw;
+}
+
+}  // namespace sonomesh::sim

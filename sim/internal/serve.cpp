@@ -1,0 +1,337 @@
+// probe-sim serve: a probe on a socket - phantom volumes or a .usv replay, with fault injection.
+#include <CLI/CLI.hpp>
+#include <netdb.h>
+#include <netinet/in.h>
+#include <poll.h>
+#include <signal.h>
+#include <sys/socket.h>
+#include <sys/un.h>
+#include <unistd.h>
+
+#include <cerrno>
+#include <chrono>
+#include <cmath>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <iostream>
+#include <optional>
+#include <random>
+#include <stdexcept>
+#include <string>
+#include <thread>
+#include <variant>
+#include <vector>
+
+#include "acquire/protocol.h"
+#include "sim/internal/commands.h"
+#include "sim/phantom_source.h"
+
+namespace sonomesh::sim::internal {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+namespace fs = std::filesystem;
+
+struct ServeArgs {
+  std::string phantom;
+  std::string replay;
+  std::string listen;
+  double rate_hz = 10.0;
+  int size = 64;
+  std::uint64_t count = 0;
+  std::uint32_t seed = 1;
+  std::uint64_t corrupt_every = 0;
+  std::uint64_t drop_every = 0;
+  std::uint64_t truncate_every = 0;
+  std::uint64_t disconnect_every = 0;
+  int down_ms = 500;
+  int heartbeat_ms = 500;
+  std::uint32_t fault_seed = 1;
+};
+
+void log_line(const std::string& text) { std::cerr << "probe-sim: " + text + "\n" << std::flush; }
+
+// The listening side of unix:PATH / tcp:HOST:PORT.
+class Listener {
+ public:
+  explicit Listener(const std::string& spec) {
+    if (spec.rfind("unix:", 0) == 0) {
+      path_ = spec.substr(5);
+      if (path_.empty() || path_.size() >= sizeof(sockaddr_un{}.sun_path))
+        throw std::invalid_argument("--listen " + spec + ": bad socket path");
+    } else if (spec.rfind("tcp:", 0) == 0) {
+      const std::string rest = spec.substr(4);
+      const auto colon = rest.rfind(':');
+      if (colon == std::string::npos) throw std::invalid_argument("--listen " + spec + ": expected tcp:HOST:PORT");
+      host_ = rest.substr(0, colon);
+      port_ = rest.substr(colon + 1);
+    } else {
+      throw std::invalid_argument("--listen " + spec + ": expected unix:PATH or tcp:HOST:PORT");
+    }
+    spec_ = spec;
+  }
+  ~Listener() { stop(); }
+
+  void start() {
+    if (!path_.empty()) {
+      ::unlink(path_.c_str());
+      fd_ = ::socket(AF_UNIX, SOCK_STREAM | SOCK_CLOEXEC, 0);
+      sockaddr_un addr{};
+      addr.sun_family = AF_UNIX;
+      std::memcpy(addr.sun_path, path_.data(), path_.size());
+      if (::bind(fd_, reinterpret_cast<sockaddr*>(&addr), sizeof addr) != 0)
+        throw std::runtime_error("bind " + spec_ + ": " + std::strerror(errno));
+    } else {
+      addrinfo hints{};
+      hints.ai_family = AF_UNSPEC;
+      hints.ai_socktype = SOCK_STREAM;
+      hints.ai_flags = AI_PASSIVE;
+      addrinfo* list = nullptr;
+      if (const int rc = ::getaddrinfo(host_.c_str(), port_.c_str(), &hints, &list); rc != 0)
+        throw std::runtime_error(spec_ + ": " + ::gai_strerror(rc));
+      fd_ = ::socket(list->ai_family, SOCK_STREAM | SOCK_CLOEXEC, 0);
+      const int one = 1;
+      ::setsockopt(fd_, SOL_SOCKET, SO_REUSEADDR, &one, sizeof one);
+      const int rc = ::bind(fd_, list->ai_addr, list->ai_addrlen);
+      ::freeaddrinfo(list);
+      if (rc != 0) throw std::runtime_error("bind " + spec_ + ": " + std::strerror(errno));
+    }
+    if (::listen(fd_, 1) != 0) throw std::runtime_error("listen " + spec_ + ": " + std::strerror(errno));
+    log_line("listening on " + spec_);
+  }
+  void stop() {
+    if (fd_ >= 0) ::close(fd_);
+    fd_ = -1;
+    if (!path_.empty()) ::unlink(path_.c_str());
+  }
+  int accept_client() {
+    for (;;) {
+      const int c = ::accept4(fd_, nullptr, nullptr, SOCK_CLOEXEC);
+      if (c >= 0) return c;
+      if (errno != EINTR && errno != ECONNABORTED) throw std::runtime_error(std::string("accept: ") + std::strerror(errno));
+    }
+  }
+
+ private:
+  std::string spec_, path_, host_, port_;
+  int fd_ = -1;
+};
+
+bool send_all(int fd, const std::uint8_t* data, std::size_t size) {
+  while (size > 0) {
+    const ssize_t n = ::send(fd, data, size, MSG_NOSIGNAL);
+    if (n < 0 && errno == EINTR) continue;
+    if (n <= 0) return false;
+    data += n;
+    size -= static_cast<std::size_t>(n);
+  }
+  return true;
+}
+
+// Where the volumes come from: phantoms generated on demand or the volumes of a recording.
+class VolumeFeed {
+ public:
+  explicit VolumeFeed(const ServeArgs& args) : args_(args) {
+    if (!args.replay.empty()) {
+      file_.open(args.replay, std::ios::binary);
+      if (!file_) throw std::invalid_argument("--replay " + args.replay + ": cannot open");
+    } else {
+      auto parsed = parse_sim_uri(args.phantom);
+      if (!parsed) throw std::invalid_argument("--phantom: " + parsed.error().detail);
+      phantom_ = *parsed;
+      phantom_.spec.size_vox = args.size;
+      phantom_.spec.seed = args.seed;
+      phantom_.rate_hz = args.rate_hz > 0 ? args.rate_hz : 10.0;
+    }
+  }
+
+  /// The next volume to send, or nullopt at the end of a recording.
+  std::optional<acquire::RawVolume> next(std::uint64_t sequence) {
+    if (args_.replay.empty()) return make_stream_volume(phantom_, sequence);
+    for (;;) {
+      while (auto event = parser_.next_event()) {
+        if (auto* v = std::get_if<acquire::RawVolume>(&*event)) return std::move(*v);
+        if (auto* d = std::get_if<acquire::DroppedRecord>(&*event))
+          log_line(std::string("replay: skipping a bad record in the recording: ") +
+                   acquire::to_string(d->reason));
+      }
+      if (eof_) return std::nullopt;
+      std::vector<std::uint8_t> chunk(1 << 20);
+      file_.read(reinterpret_cast<char*>(chunk.data()), static_cast<std::streamsize>(chunk.size()));
+      const auto got = static_cast<std::size_t>(file_.gcount());
+      parser_.feed(chunk.data(), got);
+      if (got < chunk.size()) {
+        eof_ = true;
+        parser_.finish();
+      }
+    }
+  }
+
+ private:
+  const ServeArgs& args_;
+  PhantomSourceOptions phantom_;
+  std::ifstream file_;
+  acquire::StreamParser parser_;
+  bool eof_ = false;
+};
+
+std::uint64_t now_ns() {
+  return static_cast<std::uint64_t>(std::chrono::duration_cast<std::chrono::nanoseconds>(
+                                        Clock::now().time_since_epoch())
+                                        .count());
+}
+
+bool due(std::uint64_t n, std::uint64_t every) { return every > 0 && n % every == 0; }
+
+int run_serve(const ServeArgs& args) {
+  if (args.phantom.empty() == args.replay.empty())
+    throw std::invalid_argument("give exactly one of --phantom NAME or --replay PATH");
+  if (args.rate_hz < 0 || !std::isfinite(args.rate_hz) || (args.replay.empty() && args.rate_hz == 0))
+    throw std::invalid_argument("--rate must be > 0 (or 0 with --replay: recorded timestamps)");
+  if (args.size < 16) throw std::invalid_argument("--size must be at least 16");
+  ::signal(SIGPIPE, SIG_IGN);
+  VolumeFeed feed(args);
+  Listener listener(args.listen);
+  listener.start();
+  std::mt19937 fault_rng(args.fault_seed);
+
+  std::uint64_t sequence = 0;          // next volume's sequence as the probe numbers them
+  std::uint64_t records = 0;           // volume records produced, 1-based fault schedule
+  std::optional<acquire::RawVolume> pending;
+  bool finished = false;
+  std::optional<std::uint64_t> first_ts;
+  while (!finished) {
+    const int client = listener.accept_client();
+    log_line("client connected");
+    const auto start = Clock::now();
+    const std::uint64_t start_records = records;
+    first_ts.reset();  // recorded-timestamp pacing restarts with each client
+    auto last_send = Clock::now();
+    bool connected = true;
+    bool disconnected = false;
+    while (connected) {
+      if (args.count > 0 && records >= args.count) {
+        const auto eos = acquire::encode_end_of_stream(sequence, now_ns());
+        send_all(client, eos.data(), eos.size());
+        log_line("end of stream after " + std::to_string(records) + " volumes");
+        finished = true;
+        break;
+      }
+      if (!pending) {
+        pending = feed.next(sequence);
+        if (!pending) {  // end of the recording
+          const auto eos = acquire::encode_end_of_stream(sequence, now_ns());
+          send_all(client, eos.data(), eos.size());
+          log_line("end of stream: recording finished after " + std::to_string(records) + " volumes");
+          finished = true;
+          break;
+        }
+      }
+      // Pacing: fixed rate, or the recording's own timestamps.
+      const std::uint64_t k = records - start_records;
+      Clock::time_point when;
+      if (args.rate_hz > 0) {
+        when = start + std::chrono::nanoseconds(static_cast<std::int64_t>(
+                           std::llround(static_cast<double>(k) * 1e9 / args.rate_hz)));
+      } else {
+        if (!first_ts) first_ts = pending->timestamp_ns;
+        when = pending->timestamp_ns < *first_ts
+                   ? Clock::now()
+                   : start + std::chrono::nanoseconds(pending->timestamp_ns - *first_ts);
+      }
+      // Idle: heartbeats, which also reveal a client that went away.
+      while (Clock::now() + std::chrono::milliseconds(args.heartbeat_ms) < when) {
+        std::this_thread::sleep_until(std::max(Clock::now(), last_send + std::chrono::milliseconds(args.heartbeat_ms)));
+        if (Clock::now() >= last_send + std::chrono::milliseconds(args.heartbeat_ms)) {
+          const auto hb = acquire::encode_heartbeat(pending->sequence, now_ns());
+          if (!send_all(client, hb.data(), hb.size())) {
+            connected = false;
+            break;
+          }
+          last_send = Clock::now();
+        }
+      }
+      if (!connected) break;
+      std::this_thread::sleep_until(when);
+
+      acquire::RawVolume volume = std::move(*pending);
+      pending.reset();
+      const std::uint64_t n = ++records;
+      const std::uint64_t seq = volume.sequence;
+      sequence = seq + 1;
+      if (due(n, args.drop_every)) {
+        log_line("fault drop seq=" + std::to_string(seq));
+        continue;
+      }
+      auto bytes = acquire::encode_volume_record(volume);
+      if (!bytes) throw std::runtime_error(bytes.error().detail);
+      if (due(n, args.truncate_every)) {
+        log_line("fault truncate seq=" + std::to_string(seq));
+        send_all(client, bytes->data(), bytes->size() / 2);
+        connected = false;
+        break;
+      }
+      if (due(n, args.corrupt_every)) {
+        const bool header = fault_rng() % 2 == 0;
+        const std::size_t payload = bytes->size() - acquire::kHeaderBytes - acquire::kPayloadCrcBytes;
+        const std::size_t offset = header ? fault_rng() % acquire::kHeaderBytes
+                                          : acquire::kHeaderBytes + fault_rng() % payload;
+        (*bytes)[offset] ^= static_cast<std::uint8_t>(1u << (fault_rng() % 8));
+        log_line("fault corrupt seq=" + std::to_string(seq) + " where=" +
+                 (header ? "header" : "payload") + " offset=" + std::to_string(offset));
+      }
+      if (!send_all(client, bytes->data(), bytes->size())) {
+        log_line("client gone at seq=" + std::to_string(seq));
+        connected = false;
+        break;
+      }
+      last_send = Clock::now();
+      if (due(n, args.disconnect_every) && !(args.count > 0 && records >= args.count)) {
+        log_line("fault disconnect seq=" + std::to_string(seq) + " down_ms=" + std::to_string(args.down_ms));
+        ::close(client);
+        listener.stop();
+        std::this_thread::sleep_for(std::chrono::milliseconds(args.down_ms));
+        listener.start();
+        disconnected = true;
+        connected = false;
+        break;
+      }
+    }
+    // Finished, truncated or the client went away; a disconnect fault closed it already.
+    if (!disconnected) ::close(client);
+  }
+  return 0;
+}
+
+}  // namespace
+
+void add_serve_command(CLI::App& app, int& exit_code) {
+  auto args = std::make_shared<ServeArgs>();
+  CLI::App* cmd = app.add_subcommand("serve", "stream phantom volumes or a .usv recording over a socket");
+  auto* phantom = cmd->add_option("--phantom", args->phantom, "phantom name (sphere, torus, ...)");
+  auto* replay = cmd->add_option("--replay", args->replay, "a .usv recording to stream");
+  phantom->excludes(replay);
+  cmd->add_option("--listen", args->listen, "unix:PATH or tcp:HOST:PORT")->required();
+  cmd->add_option("--rate", args->rate_hz, "volumes per second (replay: 0 = recorded timestamps)");
+  cmd->add_option("--size", args->size, "phantom edge in voxels");
+  cmd->add_option("--count", args->count, "volumes before end of stream (0 = endless)");
+  cmd->add_option("--seed", args->seed, "phantom random seed");
+  cmd->add_option("--corrupt-every", args->corrupt_every, "flip a bit in every Nth record (header or payload)");
+  cmd->add_option("--drop-every", args->drop_every, "skip every Nth record (a sequence gap)");
+  cmd->add_option("--truncate-every", args->truncate_every, "send half of every Nth record, then close");
+  cmd->add_option("--disconnect-every", args->disconnect_every, "after every Nth record close and stop listening");
+  cmd->add_option("--down-ms", args->down_ms, "how long a --disconnect-every outage lasts");
+  cmd->add_option("--heartbeat-ms", args->heartbeat_ms, "heartbeat interval when idle");
+  cmd->add_option("--fault-seed", args->fault_seed, "seed of the fault injection choices");
+  cmd->callback([args, &exit_code] {
+    try {
+      exit_code = run_serve(*args);
+    } catch (const std::exception& e) {
+      std::cerr << "probe-sim serve: " << e.what() << '\n';
+      exit_code = 2;
+    }
+  });
+}
+
+}  // namespace sonomesh::sim::internal

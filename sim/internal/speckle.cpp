@@ -1,0 +1,141 @@
+#include "sim/internal/speckle.h"
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <mutex>
+
+#include "sim/internal/parallel.h"
+
+namespace sonomesh::sim::internal {
+
+std::uint64_t mix64(std::uint64_t x) {
+  x += 0x9E3779B97F4A7C15ull;
+  x = (x ^ (x >> 30)) * 0xBF58476D1CE4E5B9ull;
+  x = (x ^ (x >> 27)) * 0x94D049BB133111EBull;
+  return x ^ (x >> 31);
+}
+
+GaussianPairs::GaussianPairs(std::uint64_t seed) : state_(mix64(seed)) {}
+
+std::uint64_t GaussianPairs::next_bits() {
+  // SplitMix64: one add and a finaliser per draw; passes BigCrush and is trivially portable.
+  state_ += 0x9E3779B97F4A7C15ull;
+  std::uint64_t z = state_;
+  z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
+  z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
+  return z ^ (z >> 31);
+}
+
+void GaussianPairs::next(float& a, float& b) {
+  constexpr double kTwoPi = 6.283185307179586;
+  const double u1 = (static_cast<double>(next_bits() >> 11) + 1.0) * 0x1.0p-53;  // (0, 1]
+  const double u2 = static_cast<double>(next_bits() >> 11) * 0x1.0p-53;          // [0, 1)
+  const double r = std::sqrt(-2.0 * std::log(u1));
+  a = static_cast<float>(r * std::cos(kTwoPi * u2));
+  b = static_cast<float>(r * std::sin(kTwoPi * u2));
+}
+
+namespace {
+
+// Speckle grain: lateral (x, y) sigma 1.0 voxel, axial (z) 0.6 voxel; radius 2 taps each.
+constexpr int kRadius = 2;
+
+std::array<float, 2 * kRadius + 1> gaussian_taps(float sigma) {
+  std::array<float, 2 * kRadius + 1> w{};
+  float sum = 0.0f;
+  for (int t = -kRadius; t <= kRadius; ++t) {
+    w[t + kRadius] = std::exp(-0.5f * static_cast<float>(t * t) / (sigma * sigma));
+    sum += w[t + kRadius];
+  }
+  for (float& x : w) x /= sum;
+  return w;
+}
+
+float sum_of_squares(const std::array<float, 2 * kRadius + 1>& w) {
+  float s = 0.0f;
+  for (float x : w) s += x * x;
+  return s;
+}
+
+// Smooths interleaved complex samples (re, im) along one axis, keeping only outputs whose whole
+// kernel lies inside the input: the input is generated with a margin of kRadius per side, so the
+// field is statistically the same at the border as in the middle.
+std::vector<float> smooth_valid(const std::vector<float>& in, volume::Vec3i& dims, int axis,
+                                const std::array<float, 2 * kRadius + 1>& w) {
+  const volume::Vec3i in_dims = dims;
+  volume::Vec3i out_dims = in_dims;
+  out_dims[axis] -= 2 * kRadius;
+  const std::size_t in_stride[3] = {1, static_cast<std::size_t>(in_dims.x()),
+                                    static_cast<std::size_t>(in_dims.x()) * in_dims.y()};
+  std::vector<float> out(2 * static_cast<std::size_t>(out_dims.x()) * out_dims.y() * out_dims.z());
+  const int nx = out_dims.x(), ny = out_dims.y();
+  parallel_chunks(0, out_dims.z(), [&](int k0, int k1) {
+    for (int k = k0; k < k1; ++k)
+      for (int j = 0; j < ny; ++j) {
+        // Input index of output (0, j, k): the axis coordinate is offset by kRadius, then back.
+        const std::size_t in_row = static_cast<std::size_t>(k) * in_stride[2] + static_cast<std::size_t>(j) * in_stride[1];
+        const std::size_t out_row = (static_cast<std::size_t>(k) * ny + j) * nx;
+        for (int i = 0; i < nx; ++i) {
+          const std::size_t centre = in_row + static_cast<std::size_t>(i) * in_stride[0] + kRadius * in_stride[axis];
+          float re = 0.0f, im = 0.0f;
+          for (int t = -kRadius; t <= kRadius; ++t) {
+            const std::size_t src = centre + static_cast<std::ptrdiff_t>(t) * static_cast<std::ptrdiff_t>(in_stride[axis]);
+            re += w[t + kRadius] * in[2 * src];
+            im += w[t + kRadius] * in[2 * src + 1];
+          }
+          out[2 * (out_row + i)] = re;
+          out[2 * (out_row + i) + 1] = im;
+        }
+      }
+  });
+  dims = out_dims;
+  return out;
+}
+
+std::shared_ptr<const std::vector<float>> build_field(std::uint32_t seed, const volume::Vec3i& dims) {
+  volume::Vec3i padded = dims + volume::Vec3i::Constant(2 * kRadius);
+  const std::size_t slice = static_cast<std::size_t>(padded.x()) * padded.y();
+  std::vector<float> a(2 * slice * padded.z());
+  // One generator per padded z slice, seeded from (seed, k): the same bytes for any thread count.
+  parallel_chunks(0, padded.z(), [&](int k0, int k1) {
+    for (int k = k0; k < k1; ++k) {
+      GaussianPairs gauss(mix64(static_cast<std::uint64_t>(seed) << 32) ^ static_cast<std::uint64_t>(k));
+      float* p = a.data() + 2 * slice * k;
+      for (std::size_t t = 0; t < slice; ++t) gauss.next(p[2 * t], p[2 * t + 1]);
+    }
+  });
+  const auto lateral = gaussian_taps(1.0f);
+  const auto axial = gaussian_taps(0.6f);
+  a = smooth_valid(a, padded, 0, lateral);
+  a = smooth_valid(a, padded, 1, lateral);
+  a = smooth_valid(a, padded, 2, axial);
+  // Each smoothed component has variance sum(w^2); |c| is then Rayleigh with mean
+  // sigma * sqrt(pi / 2). Dividing by that mean makes the field a unit-mean multiplier.
+  const float sigma = std::sqrt(sum_of_squares(lateral) * sum_of_squares(lateral) * sum_of_squares(axial));
+  const float inv_mean = 1.0f / (sigma * std::sqrt(3.14159265358979f / 2.0f));
+  const std::size_t out_slice = static_cast<std::size_t>(dims.x()) * dims.y();
+  auto field = std::make_shared<std::vector<float>>(out_slice * dims.z());
+  parallel_chunks(0, dims.z(), [&](int k0, int k1) {
+    for (std::size_t t = out_slice * k0; t < out_slice * k1; ++t)
+      (*field)[t] = std::sqrt(a[2 * t] * a[2 * t] + a[2 * t + 1] * a[2 * t + 1]) * inv_mean;
+  });
+  return field;
+}
+
+}  // namespace
+
+std::shared_ptr<const std::vector<float>> speckle_field(std::uint32_t seed, const volume::Vec3i& dims) {
+  static std::mutex mutex;
+  static std::uint32_t cached_seed = 0;
+  static volume::Vec3i cached_dims = volume::Vec3i::Zero();
+  static std::shared_ptr<const std::vector<float>> cached;
+  std::lock_guard lock(mutex);
+  if (cached && cached_seed == seed && cached_dims == dims) return cached;
+  cached = build_field(seed, dims);
+  cached_seed = seed;
+  cached_dims = dims;
+  return cached;
+}
+
+}  // namespace sonomesh::sim::internal
