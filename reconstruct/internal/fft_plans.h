@@ -1,0 +1,42 @@
+#pragma once
+// FFTW single-precision plans, made once per (grid size, direction, threads, rigour) and reused.
+// FFTW's planner is not thread-safe, so making a plan holds a mutex; executing a cached plan on
+// new arrays (fftwf_execute_dft_*) is thread-safe and needs no lock. Arrays passed to the
+// execute functions must come from fft_alloc so their alignment matches the planning arrays.
+
+#include <array>
+#include <cstddef>
+#include <complex>
+
+namespace sonomesh::reconstruct::internal {
+
+struct FftPlanStats {
+  std::size_t plans_created = 0;  // planner calls so far (process-wide)
+  std::size_t cache_hits = 0;     // requests served from the cache
+};
+FftPlanStats fft_plan_stats();
+
+/// FFTW-aligned float buffer (fftwf_malloc), freed on destruction.
+class FftBuffer {
+ public:
+  explicit FftBuffer(std::size_t floats);
+  ~FftBuffer();
+  FftBuffer(const FftBuffer&) = delete;
+  FftBuffer& operator=(const FftBuffer&) = delete;
+  float* data() { return data_; }
+  std::complex<float>* complex() { return reinterpret_cast<std::complex<float>*>(data_); }
+  std::size_t size() const { return size_; }
+
+ private:
+  float* data_ = nullptr;
+  std::size_t size_ = 0;
+};
+
+/// dims = (nx, ny, nz), x fastest in memory. The half-complex axis is x: (nx/2 + 1) * ny * nz.
+/// Forward: real `in` (nx*ny*nz) -> complex `out`. Inverse: complex `in` (destroyed) -> real.
+void fft_forward(const std::array<int, 3>& dims, float* in, std::complex<float>* out, int threads,
+                 bool measure);
+void fft_inverse(const std::array<int, 3>& dims, std::complex<float>* in, float* out, int threads,
+                 bool measure);
+
+}  // namespace sonomesh::reconstruct::internal

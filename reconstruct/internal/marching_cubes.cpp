@@ -1,0 +1,334 @@
+// Marching cubes (Lorensen & Cline 1987) with a case table generated here rather than typed in.
+//
+// Why generated: the published 256-case tables resolve ambiguous faces by sign pattern only and
+// reuse one triangulation for a case and its complement, which is what leaves holes between
+// neighbouring cubes. Here a case is the 8 corner signs plus, for each ambiguous face, the
+// asymptotic decider's answer (Nielson & Hamann 1991) - 2^14 keys. The decider depends only on
+// the face's four values, so the two cubes sharing a face always draw the same segments on it:
+// the mesh is watertight by construction. Each cube's face segments are chained into closed
+// loops and every loop is triangulated as a fan whose diagonals never join two vertices of one
+// cube face (otherwise a diagonal could be shared with the neighbour cube and an edge would get
+// four triangles); a loop that admits no such fan gets a centre vertex. So every mesh edge lies
+// either on a cube face (exactly two cubes, one triangle each) or inside one cube (exactly two
+// triangles of one fan): a closed 2-manifold.
+
+#include <array>
+#include <cassert>
+#include <cmath>
+#include <cstdint>
+#include <memory>
+#include <stdexcept>
+#include <vector>
+
+#include "reconstruct/internal/parallel.h"
+#include "reconstruct/reconstruct.h"
+
+namespace sonomesh::reconstruct {
+namespace {
+
+// Corner c of a cube sits at (c & 1, (c >> 1) & 1, (c >> 2) & 1). Edge e runs along axis e / 4
+// from corner kEdgeBase[e] to kEdgeBase[e] + (1 << axis).
+constexpr std::array<int, 12> kEdgeBase = {0, 2, 4, 6, 0, 1, 4, 5, 0, 1, 2, 3};
+
+int edge_axis(int e) { return e / 4; }
+int edge_end(int e) { return kEdgeBase[e] + (1 << edge_axis(e)); }
+
+int edge_between(int c0, int c1) {
+  for (int e = 0; e < 12; ++e) {
+    if ((kEdgeBase[e] == c0 && edge_end(e) == c1) || (kEdgeBase[e] == c1 && edge_end(e) == c0))
+      return e;
+  }
+  assert(false && "corners are not adjacent");
+  return -1;
+}
+
+struct Face {
+  int axis = 0, side = 0;
+  std::array<int, 4> corners{};  // cyclic order
+  std::array<int, 4> edges{};    // edges[i] joins corners[i] and corners[i + 1]
+};
+
+std::array<Face, 6> make_faces() {
+  std::array<Face, 6> faces{};
+  for (int f = 0; f < 6; ++f) {
+    Face& face = faces[f];
+    face.axis = f / 2;
+    face.side = f % 2;
+    const int u = (face.axis + 1) % 3, v = (face.axis + 2) % 3;
+    const int uv[4][2] = {{0, 0}, {1, 0}, {1, 1}, {0, 1}};
+    for (int i = 0; i < 4; ++i)
+      face.corners[i] = (face.side << face.axis) | (uv[i][0] << u) | (uv[i][1] << v);
+    for (int i = 0; i < 4; ++i) face.edges[i] = edge_between(face.corners[i], face.corners[(i + 1) % 4]);
+  }
+  return faces;
+}
+
+const std::array<Face, 6>& faces() {
+  static const std::array<Face, 6> f = make_faces();
+  return f;
+}
+
+std::array<float, 3> corner_pos(int c) {
+  return {float(c & 1), float((c >> 1) & 1), float((c >> 2) & 1)};
+}
+std::array<float, 3> edge_mid(int e) {
+  auto p = corner_pos(kEdgeBase[e]);
+  p[edge_axis(e)] = 0.5f;
+  return p;
+}
+
+bool edges_share_face(int e0, int e1) {
+  for (const Face& f : faces()) {
+    bool a = false, b = false;
+    for (int e : f.edges) {
+      a |= e == e0;
+      b |= e == e1;
+    }
+    if (a && b) return true;
+  }
+  return false;
+}
+
+bool face_ambiguous(const Face& f, int mask) {
+  const int s0 = (mask >> f.corners[0]) & 1, s1 = (mask >> f.corners[1]) & 1;
+  const int s2 = (mask >> f.corners[2]) & 1, s3 = (mask >> f.corners[3]) & 1;
+  return s0 == s2 && s1 == s3 && s0 != s1;
+}
+
+// Vertex ids in a case: 0..11 are edge crossings, 12 + n is the centre of centre loop n.
+struct Case {
+  std::vector<std::array<std::uint8_t, 3>> triangles;
+  std::vector<std::vector<std::uint8_t>> centre_loops;  // edge ids of loops with a centre vertex
+};
+
+Case build_case(int mask, int decisions) {
+  const auto& fs = faces();
+  std::array<int, 12> next;
+  next.fill(-1);
+  auto add_segment = [&](int p, int q, int ref_corner, const Face& f) {
+    // Orient p -> q so that, seen from outside the cube, the inside corners lie on the right;
+    // chained loops are then counter-clockwise seen from the outside (the low-field side).
+    const auto a = edge_mid(p), b = edge_mid(q), x = corner_pos(ref_corner);
+    const float d[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]};
+    const float r[3] = {x[0] - a[0], x[1] - a[1], x[2] - a[2]};
+    const float cr[3] = {d[1] * r[2] - d[2] * r[1], d[2] * r[0] - d[0] * r[2], d[0] * r[1] - d[1] * r[0]};
+    const float o = cr[f.axis] * (f.side ? 1.0f : -1.0f);
+    const bool ref_inside = (mask >> ref_corner) & 1;
+    if ((ref_inside && o > 0) || (!ref_inside && o < 0)) std::swap(p, q);
+    assert(next[p] == -1);
+    next[p] = q;
+  };
+  for (int fi = 0; fi < 6; ++fi) {
+    const Face& f = fs[fi];
+    int in[4];
+    for (int i = 0; i < 4; ++i) in[i] = (mask >> f.corners[i]) & 1;
+    int crossing[4], n = 0;
+    for (int i = 0; i < 4; ++i)
+      if (in[i] != in[(i + 1) % 4]) crossing[n++] = i;
+    if (n == 2) {
+      add_segment(f.edges[crossing[0]], f.edges[crossing[1]], f.corners[(crossing[0] + 1) % 4], f);
+    } else if (n == 4) {
+      // Inside connected across the face: the segments cut off the outside corners, else the
+      // inside ones.
+      const int cut = ((decisions >> fi) & 1) ? 0 : 1;
+      for (int i = 0; i < 4; ++i)
+        if (in[i] == cut) add_segment(f.edges[(i + 3) % 4], f.edges[i], f.corners[i], f);
+    }
+  }
+  Case c;
+  std::array<bool, 12> used{};
+  for (int start = 0; start < 12; ++start) {
+    if (next[start] < 0 || used[start]) continue;
+    std::vector<std::uint8_t> loop;
+    for (int e = start; !used[e]; e = next[e]) {
+      assert(next[e] >= 0);
+      used[e] = true;
+      loop.push_back(static_cast<std::uint8_t>(e));
+    }
+    const int n = static_cast<int>(loop.size());
+    assert(n >= 3);
+    int apex = -1;
+    for (int a = 0; a < n && apex < 0; ++a) {
+      bool ok = true;
+      for (int k = 2; k <= n - 2 && ok; ++k) ok = !edges_share_face(loop[a], loop[(a + k) % n]);
+      if (ok) apex = a;
+    }
+    if (apex >= 0) {
+      for (int k = 1; k + 1 < n; ++k)
+        c.triangles.push_back({loop[apex], loop[(apex + k) % n], loop[(apex + k + 1) % n]});
+    } else {
+      const auto centre = static_cast<std::uint8_t>(12 + c.centre_loops.size());
+      for (int k = 0; k < n; ++k) c.triangles.push_back({centre, loop[k], loop[(k + 1) % n]});
+      c.centre_loops.push_back(loop);
+    }
+  }
+  return c;
+}
+
+struct Tables {
+  std::vector<Case> cases;                // index: mask | decisions << 8
+  std::array<std::uint8_t, 256> ambiguous{};  // bit f: face f is ambiguous for this mask
+};
+
+const Tables& tables() {
+  static const Tables t = [] {
+    Tables t;
+    t.cases.resize(1 << 14);
+    for (int mask = 0; mask < 256; ++mask) {
+      for (int f = 0; f < 6; ++f)
+        if (face_ambiguous(faces()[f], mask)) t.ambiguous[mask] |= static_cast<std::uint8_t>(1 << f);
+      for (int d = 0; d < 64; ++d) {
+        if ((d & ~t.ambiguous[mask]) != 0) continue;  // only decisions for ambiguous faces matter
+        t.cases[mask | (d << 8)] = build_case(mask, d);
+      }
+    }
+    return t;
+  }();
+  return t;
+}
+
+}  // namespace
+
+Mesh marching_cubes(const volume::Volume& field, float iso) {
+  if (field.type() != volume::VoxelType::Float32)
+    throw std::invalid_argument("marching_cubes: field must be a Float32 volume");
+  const auto dims = field.dims();
+  if ((dims.array() < 2).any())
+    throw std::invalid_argument("marching_cubes: field needs at least 2 samples per axis");
+  const Tables& tab = tables();
+  const int nx = dims.x(), ny = dims.y(), nz = dims.z();
+  const std::size_t sx = 1, sy = static_cast<std::size_t>(nx), sz = sy * ny;
+  const std::size_t n_points = sz * nz;
+  const float* f = field.f32().data();
+  const int threads = internal::default_threads();
+
+  // Border samples count as outside (value pushed just below iso) so every surface closes.
+  auto value = [&](int i, int j, int k) -> float {
+    const float v = f[i * sx + j * sy + k * sz] - iso;
+    const bool border = i == 0 || j == 0 || k == 0 || i == nx - 1 || j == ny - 1 || k == nz - 1;
+    return border ? std::min(v, -1e-30f) : v;
+  };
+
+  std::vector<std::uint8_t> inside(n_points);
+  internal::parallel_chunks(0, nz, threads, [&](int k0, int k1, int) {
+    for (int k = k0; k < k1; ++k)
+      for (int j = 0; j < ny; ++j)
+        for (int i = 0; i < nx; ++i) inside[i + j * sy + k * sz] = value(i, j, k) > 0.0f;
+  });
+
+  // One vertex per crossed grid edge, numbered layer by layer so the threads need no locking.
+  // The index array is left uninitialised: only entries of crossed edges are ever read.
+  std::unique_ptr<std::int32_t[]> edge_vertex(new std::int32_t[3 * n_points]);
+  std::vector<int> layer_count(nz, 0);
+  const std::size_t step[3] = {sx, sy, sz};
+  const int lim[3] = {nx, ny, nz};
+  auto crosses = [&](std::size_t p, int axis, int i, int j, int k) {
+    const int c[3] = {i, j, k};
+    return c[axis] + 1 < lim[axis] && inside[p] != inside[p + step[axis]];
+  };
+  internal::parallel_chunks(0, nz, threads, [&](int k0, int k1, int) {
+    for (int k = k0; k < k1; ++k) {
+      int count = 0;
+      for (int j = 0; j < ny; ++j)
+        for (int i = 0; i < nx; ++i) {
+          const std::size_t p = i + j * sy + k * sz;
+          for (int a = 0; a < 3; ++a) count += crosses(p, a, i, j, k);
+        }
+      layer_count[k] = count;
+    }
+  });
+  std::vector<int> layer_offset(nz + 1, 0);
+  for (int k = 0; k < nz; ++k) layer_offset[k + 1] = layer_offset[k] + layer_count[k];
+  Mesh mesh;
+  mesh.vertices.resize(layer_offset[nz]);
+  const Vec3f spacing = field.spacing_mm(), origin = field.origin_mm();
+  internal::parallel_chunks(0, nz, threads, [&](int k0, int k1, int) {
+    for (int k = k0; k < k1; ++k) {
+      int index = layer_offset[k];
+      for (int j = 0; j < ny; ++j)
+        for (int i = 0; i < nx; ++i) {
+          const std::size_t p = i + j * sy + k * sz;
+          for (int a = 0; a < 3; ++a) {
+            if (!crosses(p, a, i, j, k)) continue;
+            const float f0 = value(i, j, k);
+            const float f1 = value(i + (a == 0), j + (a == 1), k + (a == 2));
+            float t = f0 / (f0 - f1);
+            t = std::isfinite(t) ? std::clamp(t, 0.0f, 1.0f) : 0.5f;
+            Vec3f ijk{float(i), float(j), float(k)};
+            ijk[a] += t;
+            mesh.vertices[index] = origin + spacing.cwiseProduct(ijk);
+            edge_vertex[3 * p + a] = index++;
+          }
+        }
+    }
+  });
+
+  // Cells: one triangle list per thread; centre vertices are numbered after all edge vertices.
+  struct Local {
+    std::vector<std::array<std::uint32_t, 3>> triangles;
+    std::vector<Vec3f> centres;
+  };
+  constexpr std::uint32_t kCentreTag = 0x80000000u;
+  std::vector<Local> locals(threads);
+  internal::parallel_chunks(0, nz - 1, threads, [&](int k0, int k1, int t) {
+    Local& out = locals[t];
+    std::uint32_t vid[16];
+    for (int k = k0; k < k1; ++k)
+      for (int j = 0; j + 1 < ny; ++j)
+        for (int i = 0; i + 1 < nx; ++i) {
+          const std::size_t p = i + j * sy + k * sz;
+          int mask = 0;
+          for (int c = 0; c < 8; ++c)
+            mask |= inside[p + (c & 1) * sx + ((c >> 1) & 1) * sy + ((c >> 2) & 1) * sz] << c;
+          if (mask == 0 || mask == 255) continue;
+          int decisions = 0;
+          if (const int amb = tab.ambiguous[mask]) {
+            for (int fi = 0; fi < 6; ++fi) {
+              if (!((amb >> fi) & 1)) continue;
+              const Face& face = faces()[fi];
+              float v[4];
+              for (int q = 0; q < 4; ++q) {
+                const int c = face.corners[q];
+                v[q] = value(i + (c & 1), j + ((c >> 1) & 1), k + ((c >> 2) & 1));
+              }
+              // Asymptotic decider: the bilinear saddle is inside iff the product of the inside
+              // diagonal exceeds that of the outside one. Same four floats in both cubes, and
+              // multiplication commutes exactly, so the neighbours agree bit for bit.
+              const bool c0_inside = (mask >> face.corners[0]) & 1;
+              const float p_in = c0_inside ? v[0] * v[2] : v[1] * v[3];
+              const float p_out = c0_inside ? v[1] * v[3] : v[0] * v[2];
+              if (p_in > p_out) decisions |= 1 << fi;
+            }
+          }
+          const Case& cs = tab.cases[mask | (decisions << 8)];
+          for (int e = 0; e < 12; ++e) {
+            const int b = kEdgeBase[e];
+            const std::size_t q = p + (b & 1) * sx + ((b >> 1) & 1) * sy + ((b >> 2) & 1) * sz;
+            if (inside[q] != inside[q + step[edge_axis(e)]])
+              vid[e] = static_cast<std::uint32_t>(edge_vertex[3 * q + edge_axis(e)]);
+          }
+          for (std::size_t l = 0; l < cs.centre_loops.size(); ++l) {
+            Vec3f c = Vec3f::Zero();
+            for (auto e : cs.centre_loops[l]) c += mesh.vertices[vid[e]];
+            out.centres.push_back(c / float(cs.centre_loops[l].size()));
+            vid[12 + l] = kCentreTag | static_cast<std::uint32_t>(out.centres.size() - 1);
+          }
+          for (const auto& tri : cs.triangles) out.triangles.push_back({vid[tri[0]], vid[tri[1]], vid[tri[2]]});
+        }
+  });
+  std::size_t n_tri = 0;
+  for (const auto& l : locals) n_tri += l.triangles.size();
+  mesh.triangles.reserve(n_tri);
+  for (const auto& l : locals) {
+    const auto base = static_cast<std::uint32_t>(mesh.vertices.size());
+    for (auto tri : l.triangles) {
+      for (auto& v : tri)
+        if (v & kCentreTag) v = base + (v & ~kCentreTag);
+      mesh.triangles.push_back(tri);
+    }
+    mesh.vertices.insert(mesh.vertices.end(), l.centres.begin(), l.centres.end());
+  }
+  return mesh;
+}
+
+}  // namespace sonomesh::reconstruct

@@ -1,0 +1,293 @@
+// Mesh files: PLY (DESIGN.md fixes the output layout exactly), binary STL, OBJ, and a PLY reader.
+
+#include <bit>
+#include <cstring>
+#include <fstream>
+#include <sstream>
+#include <stdexcept>
+
+#include <Eigen/Geometry>
+
+#include "reconstruct/reconstruct.h"
+
+namespace sonomesh::reconstruct {
+namespace {
+
+static_assert(std::endian::native == std::endian::little, "PLY/STL writers assume a little-endian host");
+
+MeshIoError io_error(MeshIoError::Code code, const std::filesystem::path& path, const std::string& what) {
+  return {code, path.string() + ": " + what};
+}
+
+std::optional<MeshIoError> finish(std::ofstream& out, const std::filesystem::path& path) {
+  out.flush();
+  if (!out) return io_error(MeshIoError::Code::WriteFailed, path, "write failed (disk full?)");
+  return std::nullopt;
+}
+
+template <class T>
+void put(std::string& buf, const T& value) {
+  const auto* p = reinterpret_cast<const char*>(&value);
+  buf.append(p, p + sizeof(T));
+}
+
+std::optional<MeshIoError> write_ply_impl(const Mesh& mesh, const std::vector<StopReason>* stop,
+                                          const std::filesystem::path& path) {
+  std::ofstream out(path, std::ios::binary | std::ios::trunc);
+  if (!out) return io_error(MeshIoError::Code::OpenFailed, path, "cannot open for writing");
+  std::string header = "ply\nformat binary_little_endian 1.0\nelement vertex " +
+                       std::to_string(mesh.vertices.size()) +
+                       "\nproperty float x\nproperty float y\nproperty float z\n";
+  if (stop) header += "property uchar stop\n";
+  header += "element face " + std::to_string(mesh.triangles.size()) +
+            "\nproperty list uchar int vertex_indices\nend_header\n";
+  std::string body;
+  body.reserve(mesh.vertices.size() * 13 + mesh.triangles.size() * 13);
+  for (std::size_t v = 0; v < mesh.vertices.size(); ++v) {
+    for (int a = 0; a < 3; ++a) put(body, mesh.vertices[v][a]);
+    if (stop) put(body, static_cast<std::uint8_t>((*stop)[v]));
+  }
+  for (const auto& t : mesh.triangles) {
+    put(body, std::uint8_t{3});
+    for (auto i : t) put(body, static_cast<std::int32_t>(i));
+  }
+  out.write(header.data(), std::streamsize(header.size()));
+  out.write(body.data(), std::streamsize(body.size()));
+  return finish(out, path);
+}
+
+// ---- reader ----
+
+enum class Type { I8, U8, I16, U16, I32, U32, F32, F64 };
+
+std::optional<Type> parse_type(const std::string& s) {
+  if (s == "char" || s == "int8") return Type::I8;
+  if (s == "uchar" || s == "uint8") return Type::U8;
+  if (s == "short" || s == "int16") return Type::I16;
+  if (s == "ushort" || s == "uint16") return Type::U16;
+  if (s == "int" || s == "int32") return Type::I32;
+  if (s == "uint" || s == "uint32") return Type::U32;
+  if (s == "float" || s == "float32") return Type::F32;
+  if (s == "double" || s == "float64") return Type::F64;
+  return std::nullopt;
+}
+
+int type_size(Type t) {
+  switch (t) {
+    case Type::I8: case Type::U8: return 1;
+    case Type::I16: case Type::U16: return 2;
+    case Type::I32: case Type::U32: case Type::F32: return 4;
+    case Type::F64: return 8;
+  }
+  return 0;
+}
+
+struct Property {
+  std::string name;
+  Type type = Type::F32;
+  bool is_list = false;
+  Type count_type = Type::U8;
+};
+struct Element {
+  std::string name;
+  std::size_t count = 0;
+  std::vector<Property> properties;
+};
+
+// Reads one scalar as double, from binary bytes or ascii tokens.
+class Source {
+ public:
+  Source(std::istream& in, bool ascii) : in_(in), ascii_(ascii) {}
+  bool read(Type t, double* value) {
+    if (ascii_) return static_cast<bool>(in_ >> *value);
+    char b[8];
+    if (!in_.read(b, type_size(t))) return false;
+    switch (t) {
+      case Type::I8: *value = static_cast<std::int8_t>(b[0]); break;
+      case Type::U8: *value = static_cast<std::uint8_t>(b[0]); break;
+      case Type::I16: { std::int16_t x; std::memcpy(&x, b, 2); *value = x; break; }
+      case Type::U16: { std::uint16_t x; std::memcpy(&x, b, 2); *value = x; break; }
+      case Type::I32: { std::int32_t x; std::memcpy(&x, b, 4); *value = x; break; }
+      case Type::U32: { std::uint32_t x; std::memcpy(&x, b, 4); *value = x; break; }
+      case Type::F32: { float x; std::memcpy(&x, b, 4); *value = x; break; }
+      case Type::F64: { double x; std::memcpy(&x, b, 8); *value = x; break; }
+    }
+    return true;
+  }
+
+ private:
+  std::istream& in_;
+  bool ascii_;
+};
+
+}  // namespace
+
+std::optional<MeshIoError> write_ply(const Mesh& mesh, const std::filesystem::path& path) {
+  return write_ply_impl(mesh, nullptr, path);
+}
+
+std::optional<MeshIoError> write_balloon_ply(const Mesh& mesh, const std::vector<StopReason>& stop,
+                                             const std::filesystem::path& path) {
+  if (stop.size() != mesh.vertices.size())
+    throw std::invalid_argument("write_balloon_ply: stop.size() != mesh.vertices.size()");
+  return write_ply_impl(mesh, &stop, path);
+}
+
+std::optional<MeshIoError> write_stl(const Mesh& mesh, const std::filesystem::path& path) {
+  std::ofstream out(path, std::ios::binary | std::ios::trunc);
+  if (!out) return io_error(MeshIoError::Code::OpenFailed, path, "cannot open for writing");
+  std::string buf(80, '\0');
+  const char title[] = "sonomesh binary STL, mm";
+  std::memcpy(buf.data(), title, sizeof(title) - 1);
+  put(buf, static_cast<std::uint32_t>(mesh.triangles.size()));
+  for (const auto& t : mesh.triangles) {
+    const Vec3f &a = mesh.vertices[t[0]], &b = mesh.vertices[t[1]], &c = mesh.vertices[t[2]];
+    Vec3f n = (b - a).cross(c - a);
+    n = n.norm() > 0.0f ? Vec3f(n.normalized()) : Vec3f::Zero();
+    for (const Vec3f* p : std::initializer_list<const Vec3f*>{&n, &a, &b, &c})
+      for (int i = 0; i < 3; ++i) put(buf, (*p)[i]);
+    put(buf, std::uint16_t{0});
+  }
+  out.write(buf.data(), std::streamsize(buf.size()));
+  return finish(out, path);
+}
+
+std::optional<MeshIoError> write_obj(const Mesh& mesh, const std::filesystem::path& path) {
+  std::ofstream out(path, std::ios::trunc);
+  if (!out) return io_error(MeshIoError::Code::OpenFailed, path, "cannot open for writing");
+  std::ostringstream s;
+  s.precision(9);
+  s << "# sonomesh mesh, mm\n";
+  for (const auto& v : mesh.vertices) s << "v " << v.x() << ' ' << v.y() << ' ' << v.z() << '\n';
+  for (const auto& t : mesh.triangles) s << "f " << t[0] + 1 << ' ' << t[1] + 1 << ' ' << t[2] + 1 << '\n';
+  out << s.str();
+  return finish(out, path);
+}
+
+std::optional<MeshIoError> write_mesh(const Mesh& mesh, const std::filesystem::path& path) {
+  const auto ext = path.extension().string();
+  if (ext == ".ply" || ext == ".PLY") return write_ply(mesh, path);
+  if (ext == ".stl" || ext == ".STL") return write_stl(mesh, path);
+  if (ext == ".obj" || ext == ".OBJ") return write_obj(mesh, path);
+  return io_error(MeshIoError::Code::Unsupported, path, "unknown mesh extension (want .ply, .stl or .obj)");
+}
+
+MeshReadResult read_ply(const std::filesystem::path& path) {
+  MeshReadResult r;
+  auto fail = [&](MeshIoError::Code code, const std::string& what) {
+    r.error = io_error(code, path, what);
+    r.mesh = {};
+    r.stop.clear();
+    return r;
+  };
+  std::ifstream in(path, std::ios::binary);
+  if (!in) return fail(MeshIoError::Code::OpenFailed, "cannot open");
+  std::string line;
+  if (!std::getline(in, line) || line != "ply") return fail(MeshIoError::Code::BadHeader, "not a PLY file");
+  bool ascii = false, have_format = false;
+  std::vector<Element> elements;
+  for (;;) {
+    if (!std::getline(in, line)) return fail(MeshIoError::Code::Truncated, "header ends before end_header");
+    if (!line.empty() && line.back() == '\r') line.pop_back();
+    std::istringstream ls(line);
+    std::string word;
+    ls >> word;
+    if (word == "end_header") break;
+    if (word == "comment" || word == "obj_info" || word.empty()) continue;
+    if (word == "format") {
+      std::string fmt;
+      ls >> fmt;
+      if (fmt == "ascii") ascii = true;
+      else if (fmt != "binary_little_endian")
+        return fail(MeshIoError::Code::Unsupported, "format '" + fmt + "' not supported");
+      have_format = true;
+    } else if (word == "element") {
+      Element e;
+      long long count = -1;
+      ls >> e.name >> count;
+      if (!ls || count < 0) return fail(MeshIoError::Code::BadHeader, "bad element line: " + line);
+      e.count = static_cast<std::size_t>(count);
+      elements.push_back(e);
+    } else if (word == "property") {
+      if (elements.empty()) return fail(MeshIoError::Code::BadHeader, "property before element");
+      Property p;
+      std::string t;
+      ls >> t;
+      if (t == "list") {
+        std::string ct, it;
+        ls >> ct >> it >> p.name;
+        const auto c = parse_type(ct), i = parse_type(it);
+        if (!c || !i) return fail(MeshIoError::Code::BadHeader, "bad list property: " + line);
+        p.is_list = true;
+        p.count_type = *c;
+        p.type = *i;
+      } else {
+        const auto ty = parse_type(t);
+        ls >> p.name;
+        if (!ty) return fail(MeshIoError::Code::BadHeader, "bad property type: " + line);
+        p.type = *ty;
+      }
+      elements.back().properties.push_back(p);
+    } else {
+      return fail(MeshIoError::Code::BadHeader, "unknown header line: " + line);
+    }
+  }
+  if (!have_format) return fail(MeshIoError::Code::BadHeader, "no format line");
+  Source src(in, ascii);
+  bool have_vertices = false, have_faces = false;
+  for (const Element& e : elements) {
+    const bool is_vertex = e.name == "vertex", is_face = e.name == "face";
+    int ix = -1, iy = -1, iz = -1, istop = -1, iidx = -1;
+    for (int p = 0; p < static_cast<int>(e.properties.size()); ++p) {
+      const auto& n = e.properties[p].name;
+      if (n == "x") ix = p;
+      if (n == "y") iy = p;
+      if (n == "z") iz = p;
+      if (n == "stop") istop = p;
+      if ((n == "vertex_indices" || n == "vertex_index") && e.properties[p].is_list) iidx = p;
+    }
+    if (is_vertex) {
+      if (ix < 0 || iy < 0 || iz < 0) return fail(MeshIoError::Code::BadHeader, "vertex element lacks x, y or z");
+      r.mesh.vertices.resize(e.count);
+      if (istop >= 0) r.stop.resize(e.count);
+      have_vertices = true;
+    }
+    if (is_face) {
+      if (iidx < 0) return fail(MeshIoError::Code::BadHeader, "face element lacks vertex_indices");
+      have_faces = true;
+    }
+    std::vector<double> list;
+    for (std::size_t n = 0; n < e.count; ++n) {
+      for (int p = 0; p < static_cast<int>(e.properties.size()); ++p) {
+        const Property& prop = e.properties[p];
+        double value = 0.0;
+        if (prop.is_list) {
+          if (!src.read(prop.count_type, &value) || value < 0 || value > 1e6)
+            return fail(MeshIoError::Code::Truncated, "truncated or bad list in element " + e.name);
+          list.resize(static_cast<std::size_t>(value));
+          for (auto& x : list)
+            if (!src.read(prop.type, &x)) return fail(MeshIoError::Code::Truncated, "truncated list in element " + e.name);
+          if (is_face && p == iidx) {
+            for (double x : list)
+              if (x < 0 || x >= double(r.mesh.vertices.size()))
+                return fail(MeshIoError::Code::BadIndex, "face " + std::to_string(n) + " indexes a missing vertex");
+            for (std::size_t k = 1; k + 1 < list.size(); ++k)  // polygons as fans
+              r.mesh.triangles.push_back({std::uint32_t(list[0]), std::uint32_t(list[k]), std::uint32_t(list[k + 1])});
+          }
+          continue;
+        }
+        if (!src.read(prop.type, &value)) return fail(MeshIoError::Code::Truncated, "truncated element " + e.name);
+        if (is_vertex) {
+          if (p == ix) r.mesh.vertices[n].x() = float(value);
+          if (p == iy) r.mesh.vertices[n].y() = float(value);
+          if (p == iz) r.mesh.vertices[n].z() = float(value);
+          if (p == istop) r.stop[n] = static_cast<std::uint8_t>(value);
+        }
+      }
+    }
+  }
+  if (!have_vertices || !have_faces) return fail(MeshIoError::Code::BadHeader, "needs vertex and face elements");
+  return r;
+}
+
+}  // namespace sonomesh::reconstruct

@@ -1,0 +1,234 @@
+// Kazhdan's FFT reconstruction (Kazhdan, "Reconstruction of Solid Models from Oriented Point
+// Sets", SGP 2005), as method.md §5 fixes it.
+//
+// The samples' outward normals, weighted by their area, are splatted trilinearly as a vector
+// field V (a density: divided by the cell volume, so χ comes out close to 1 inside and 0 outside
+// up to a constant). The indicator's gradient is the smoothed inward normal field, ∇χ = −V, so
+// Δχ = −∇·V and in frequency space χ̂(k) = i k·V̂(k) / |k|²: with this sign χ is larger inside.
+// The Gaussian smoothing of V (sigma ≈ 1 cell) is a multiplication by exp(−σ²|k|²/2).
+
+#include <algorithm>
+#include <cmath>
+#include <complex>
+#include <stdexcept>
+#include <string>
+
+#include "reconstruct/internal/fft_plans.h"
+#include "reconstruct/internal/parallel.h"
+#include "reconstruct/reconstruct.h"
+
+namespace sonomesh::reconstruct {
+namespace {
+
+bool fft_friendly(int n) {
+  for (int p : {2, 3, 5})
+    while (n % p == 0) n /= p;
+  return n == 1;
+}
+int round_up_fft(int n) {
+  // Even sizes keep the r2c layout simple and are faster in FFTW.
+  n = std::max(n, 8);
+  while (!fft_friendly(n) || n % 2 != 0) ++n;
+  return n;
+}
+
+void check(bool ok, const std::string& what) {
+  if (!ok) throw std::invalid_argument("poisson_indicator: " + what);
+}
+
+// Signed frequency (radians per mm) of FFT bin m on an axis of n bins.
+inline float wave_number(int m, int n, float cell_mm) {
+  const int s = m <= n / 2 ? m : m - n;
+  return 2.0f * float(M_PI) * float(s) / (float(n) * cell_mm);
+}
+
+struct Grid {
+  std::array<int, 3> dims{};
+  Vec3f origin_mm;
+  float cell_mm = 0.0f;
+  std::size_t size() const { return std::size_t(dims[0]) * dims[1] * dims[2]; }
+  std::size_t complex_size() const { return std::size_t(dims[0] / 2 + 1) * dims[1] * dims[2]; }
+};
+
+Grid make_grid(const PointCloud& s, const PoissonOptions& o) {
+  Eigen::Vector3d lo = s.points.front().cast<double>(), hi = lo;
+  for (const auto& p : s.points) {
+    lo = lo.cwiseMin(p.cast<double>());
+    hi = hi.cwiseMax(p.cast<double>());
+  }
+  const double extent = (hi - lo).maxCoeff();
+  check(extent > 0.0, "the samples span no volume (all points coincide)");
+  Grid g;
+  g.cell_mm = o.cell_mm;
+  for (;;) {
+    // The FFT is periodic: the margin keeps the far side of the grid from feeding back. At least
+    // a few cells so the Gaussian and the splat stay clear of the wrap-around too.
+    const double pad = std::max(double(o.padding_fraction) * extent, 4.0 * g.cell_mm);
+    bool fits = true;
+    for (int a = 0; a < 3; ++a) {
+      const double span = hi[a] - lo[a] + 2.0 * pad;
+      g.dims[a] = round_up_fft(int(std::ceil(span / g.cell_mm)) + 1);
+      fits = fits && g.dims[a] <= o.max_grid_dim;
+    }
+    if (fits) break;
+    g.cell_mm *= 1.1f;  // too fine for max_grid_dim: coarsen until it fits
+  }
+  const Eigen::Vector3d centre = 0.5 * (lo + hi);
+  for (int a = 0; a < 3; ++a)
+    g.origin_mm[a] = float(centre[a] - 0.5 * (g.dims[a] - 1) * g.cell_mm);
+  return g;
+}
+
+// Trilinear weights of p in the grid: base index and fractions.
+struct Stencil {
+  std::size_t base;
+  float fx, fy, fz;
+};
+inline Stencil stencil(const Grid& g, const Vec3f& p_mm) {
+  const Vec3f u = (p_mm - g.origin_mm) / g.cell_mm;
+  int i[3];
+  float f[3];
+  for (int a = 0; a < 3; ++a) {
+    const float fl = std::floor(u[a]);
+    i[a] = std::clamp(int(fl), 0, g.dims[a] - 2);
+    f[a] = std::clamp(u[a] - float(i[a]), 0.0f, 1.0f);
+  }
+  return {std::size_t(i[0]) + std::size_t(g.dims[0]) * (i[1] + std::size_t(g.dims[1]) * i[2]), f[0], f[1], f[2]};
+}
+
+void splat(const Grid& g, const PointCloud& s, int axis, float* field) {
+  const std::size_t sy = g.dims[0], sz = sy * g.dims[1];
+  const float inv_cell_volume = 1.0f / (g.cell_mm * g.cell_mm * g.cell_mm);
+  for (std::size_t n = 0; n < s.points.size(); ++n) {
+    const float w = s.area_mm2[n] * s.normals[n][axis] * inv_cell_volume;
+    if (w == 0.0f) continue;
+    const Stencil st = stencil(g, s.points[n]);
+    for (int c = 0; c < 8; ++c) {
+      const float wx = (c & 1) ? st.fx : 1.0f - st.fx;
+      const float wy = (c & 2) ? st.fy : 1.0f - st.fy;
+      const float wz = (c & 4) ? st.fz : 1.0f - st.fz;
+      field[st.base + (c & 1) + ((c >> 1) & 1) * sy + ((c >> 2) & 1) * sz] += w * wx * wy * wz;
+    }
+  }
+}
+
+float sample(const Grid& g, const float* field, const Vec3f& p_mm) {
+  const std::size_t sy = g.dims[0], sz = sy * g.dims[1];
+  const Stencil st = stencil(g, p_mm);
+  float v = 0.0f;
+  for (int c = 0; c < 8; ++c) {
+    const float wx = (c & 1) ? st.fx : 1.0f - st.fx;
+    const float wy = (c & 2) ? st.fy : 1.0f - st.fy;
+    const float wz = (c & 4) ? st.fz : 1.0f - st.fz;
+    v += field[st.base + (c & 1) + ((c >> 1) & 1) * sy + ((c >> 2) & 1) * sz] * wx * wy * wz;
+  }
+  return v;
+}
+
+}  // namespace
+
+IndicatorGrid poisson_indicator(const PointCloud& s, const PoissonOptions& o) {
+  check(!s.points.empty(), "no samples");
+  check(s.normals.size() == s.points.size(), "normals.size() != points.size()");
+  check(s.area_mm2.size() == s.points.size(), "area_mm2.size() != points.size()");
+  for (std::size_t n = 0; n < s.points.size(); ++n)
+    check(s.points[n].allFinite() && s.normals[n].allFinite() && std::isfinite(s.area_mm2[n]) &&
+              s.area_mm2[n] >= 0.0f,
+          "sample " + std::to_string(n) + " is not finite (or has a negative area)");
+  check(std::isfinite(o.cell_mm) && o.cell_mm > 0.0f, "cell_mm must be positive");
+  check(o.padding_fraction >= 0.1f && o.padding_fraction <= 2.0f,
+        "padding_fraction must be in [0.1, 2] (the FFT is periodic)");
+  check(o.smoothing_cells >= 0.0f && o.smoothing_cells <= 8.0f, "smoothing_cells must be in [0, 8]");
+  check(o.max_grid_dim >= 16 && o.max_grid_dim <= 1024, "max_grid_dim must be in [16, 1024]");
+  check(o.fft_threads >= 1 && o.fft_threads <= 64, "fft_threads must be in [1, 64]");
+
+  const Grid g = make_grid(s, o);
+  const std::array<int, 3>& d = g.dims;
+  const std::size_t n_real = g.size(), n_cplx = g.complex_size();
+  const int hx = d[0] / 2 + 1;
+  internal::FftBuffer real(n_real), spectrum(2 * n_cplx);
+  const int threads = std::min(o.fft_threads, internal::default_threads());
+  const float sigma_mm = o.smoothing_cells * g.cell_mm;
+  const float norm = 1.0f / float(n_real);  // FFTW's transforms are unnormalised
+
+  // Visits every frequency bin with its wave vector (both cores).
+  auto for_each_bin = [&](auto&& fn) {
+    internal::parallel_chunks(0, d[2], threads, [&](int z0, int z1, int) {
+      for (int z = z0; z < z1; ++z) {
+        const float kz = wave_number(z, d[2], g.cell_mm);
+        for (int y = 0; y < d[1]; ++y) {
+          const float ky = wave_number(y, d[1], g.cell_mm);
+          const std::size_t row = (std::size_t(z) * d[1] + y) * hx;
+          for (int x = 0; x < hx; ++x) fn(row + x, wave_number(x, d[0], g.cell_mm), ky, kz, x, y, z);
+        }
+      }
+    });
+  };
+  // A derivative of a real signal has no meaningful Nyquist component: zero it.
+  auto nyq = [&](int m, int axis) { return d[axis] % 2 == 0 && m == d[axis] / 2; };
+
+  if (o.divergence == DivergenceMode::Spectral) {
+    internal::FftBuffer acc(2 * n_cplx);
+    std::complex<float>* a = acc.complex();
+    for (int axis = 0; axis < 3; ++axis) {
+      std::fill(real.data(), real.data() + n_real, 0.0f);
+      splat(g, s, axis, real.data());
+      internal::fft_forward(d, real.data(), spectrum.complex(), threads, o.measure_fft_plans);
+      const std::complex<float>* c = spectrum.complex();
+      for_each_bin([&](std::size_t i, float kx, float ky, float kz, int x, int y, int z) {
+        const int m[3] = {x, y, z};
+        const float k = nyq(m[axis], axis) ? 0.0f : (axis == 0 ? kx : axis == 1 ? ky : kz);
+        const std::complex<float> term = std::complex<float>(0.0f, k) * c[i];  // i k_a V̂_a
+        a[i] = axis == 0 ? term : a[i] + term;
+      });
+    }
+    std::copy(a, a + n_cplx, spectrum.complex());
+  } else {
+    // ∇·V by central differences on the grid, then a single forward transform.
+    internal::FftBuffer div(n_real);
+    std::fill(div.data(), div.data() + n_real, 0.0f);
+    const std::size_t stride[3] = {1, std::size_t(d[0]), std::size_t(d[0]) * d[1]};
+    const float inv_2h = 0.5f / g.cell_mm;
+    for (int axis = 0; axis < 3; ++axis) {
+      std::fill(real.data(), real.data() + n_real, 0.0f);
+      splat(g, s, axis, real.data());
+      const float* v = real.data();
+      float* dv = div.data();
+      internal::parallel_chunks(0, d[2], threads, [&](int z0, int z1, int) {
+        for (int z = z0; z < z1; ++z)
+          for (int y = 0; y < d[1]; ++y)
+            for (int x = 0; x < d[0]; ++x) {
+              const int c[3] = {x, y, z};
+              // The splat never reaches the outermost cells (padding), so clamping is exact.
+              if (c[axis] == 0 || c[axis] == d[axis] - 1) continue;
+              const std::size_t p = x + stride[1] * y + stride[2] * z;
+              dv[p] += (v[p + stride[axis]] - v[p - stride[axis]]) * inv_2h;
+            }
+      });
+    }
+    internal::fft_forward(d, div.data(), spectrum.complex(), threads, o.measure_fft_plans);
+  }
+
+  // χ̂ = (i k·V̂) / |k|² · exp(−σ²|k|²/2), χ̂(0) = 0.
+  std::complex<float>* c = spectrum.complex();
+  for_each_bin([&](std::size_t i, float kx, float ky, float kz, int, int, int) {
+    const float kk = kx * kx + ky * ky + kz * kz;
+    c[i] = kk > 0.0f ? c[i] * (std::exp(-0.5f * sigma_mm * sigma_mm * kk) * norm / kk) : 0.0f;
+  });
+  internal::fft_inverse(d, c, real.data(), threads, o.measure_fft_plans);
+
+  double weighted = 0.0, total = 0.0;
+  for (std::size_t n = 0; n < s.points.size(); ++n) {
+    weighted += double(s.area_mm2[n]) * sample(g, real.data(), s.points[n]);
+    total += s.area_mm2[n];
+  }
+  IndicatorGrid out;
+  out.iso = total > 0.0 ? float(weighted / total) : 0.0f;
+  out.cell_mm = g.cell_mm;
+  out.chi = volume::Volume(volume::Vec3i(d[0], d[1], d[2]), Vec3f::Constant(g.cell_mm), g.origin_mm,
+                           volume::VoxelType::Float32);
+  std::copy(real.data(), real.data() + n_real, out.chi.f32().begin());
+  return out;
+}
+
+}  // namespace sonomesh::reconstruct

@@ -1,0 +1,221 @@
+// Mesh counts and checks (Euler characteristic, watertightness, vertex fans), components and
+// point-in-mesh tests.
+
+#include <algorithm>
+#include <cmath>
+#include <numeric>
+#include <stdexcept>
+#include <string>
+
+#include <Eigen/Geometry>
+
+#include "reconstruct/reconstruct.h"
+
+namespace sonomesh::reconstruct {
+namespace {
+
+struct UnionFind {
+  std::vector<std::uint32_t> parent;
+  explicit UnionFind(std::size_t n) : parent(n) { std::iota(parent.begin(), parent.end(), 0u); }
+  std::uint32_t find(std::uint32_t a) {
+    while (parent[a] != a) a = parent[a] = parent[parent[a]];
+    return a;
+  }
+  void unite(std::uint32_t a, std::uint32_t b) {
+    a = find(a);
+    b = find(b);
+    if (a != b) parent[std::max(a, b)] = std::min(a, b);
+  }
+};
+
+void check_indices(const Mesh& mesh, const char* who) {
+  const auto n = mesh.vertices.size();
+  for (const auto& t : mesh.triangles)
+    for (auto v : t)
+      if (v >= n)
+        throw std::invalid_argument(std::string(who) + ": triangle index " + std::to_string(v) +
+                                    " out of range (" + std::to_string(n) + " vertices)");
+}
+
+// Component label per vertex (only meaningful for referenced vertices), labels 0..count-1.
+std::vector<int> vertex_components(const Mesh& mesh, int* count) {
+  UnionFind uf(mesh.vertices.size());
+  for (const auto& t : mesh.triangles) {
+    uf.unite(t[0], t[1]);
+    uf.unite(t[1], t[2]);
+  }
+  std::vector<char> used(mesh.vertices.size(), 0);
+  for (const auto& t : mesh.triangles) used[t[0]] = used[t[1]] = used[t[2]] = 1;
+  std::vector<int> label(mesh.vertices.size(), -1), root_label(mesh.vertices.size(), -1);
+  int n = 0;
+  for (std::uint32_t v = 0; v < mesh.vertices.size(); ++v) {
+    if (!used[v]) continue;
+    const auto r = uf.find(v);
+    if (root_label[r] < 0) root_label[r] = n++;
+    label[v] = root_label[r];
+  }
+  *count = n;
+  return label;
+}
+
+double signed_volume_mm3(const Mesh& mesh) {
+  double vol = 0.0;
+  for (const auto& t : mesh.triangles) {
+    const Eigen::Vector3d a = mesh.vertices[t[0]].cast<double>();
+    const Eigen::Vector3d b = mesh.vertices[t[1]].cast<double>();
+    const Eigen::Vector3d c = mesh.vertices[t[2]].cast<double>();
+    vol += a.dot(b.cross(c));
+  }
+  return vol / 6.0;
+}
+
+}  // namespace
+
+Topology analyze_topology(const Mesh& mesh) {
+  check_indices(mesh, "analyze_topology");
+  Topology topo;
+  int n_comp = 0;
+  const auto label = vertex_components(mesh, &n_comp);
+  topo.components = n_comp;
+  topo.faces = static_cast<int>(mesh.triangles.size());
+  topo.vertices = static_cast<int>(std::count_if(label.begin(), label.end(), [](int l) { return l >= 0; }));
+
+  // Directed half-edges (a, b) as 64-bit keys; an undirected edge is closed when it is exactly
+  // {(a, b), (b, a)}.
+  std::vector<std::uint64_t> half;
+  half.reserve(3 * mesh.triangles.size());
+  for (const auto& t : mesh.triangles)
+    for (int i = 0; i < 3; ++i) half.push_back(std::uint64_t(t[i]) << 32 | t[(i + 1) % 3]);
+  std::vector<std::uint64_t> undirected(half.size());
+  std::transform(half.begin(), half.end(), undirected.begin(), [](std::uint64_t h) {
+    const auto a = std::uint32_t(h >> 32), b = std::uint32_t(h);
+    return std::uint64_t(std::min(a, b)) << 32 | std::max(a, b);
+  });
+  std::sort(half.begin(), half.end());
+  std::sort(undirected.begin(), undirected.end());
+  bool watertight = !mesh.triangles.empty();
+  if (std::adjacent_find(half.begin(), half.end()) != half.end()) watertight = false;  // same direction twice
+  std::vector<int> edges_per_comp(n_comp, 0), verts_per_comp(n_comp, 0), faces_per_comp(n_comp, 0);
+  for (std::size_t i = 0; i < undirected.size();) {
+    std::size_t j = i;
+    while (j < undirected.size() && undirected[j] == undirected[i]) ++j;
+    if (j - i != 2) watertight = false;
+    ++topo.edges;
+    ++edges_per_comp[label[std::uint32_t(undirected[i] >> 32)]];
+    i = j;
+  }
+  for (std::size_t v = 0; v < label.size(); ++v)
+    if (label[v] >= 0) ++verts_per_comp[label[v]];
+  for (const auto& t : mesh.triangles) ++faces_per_comp[label[t[0]]];
+  topo.euler = topo.vertices - topo.edges + topo.faces;
+  for (int c = 0; c < n_comp; ++c)
+    topo.genus += (2 - (verts_per_comp[c] - edges_per_comp[c] + faces_per_comp[c])) / 2;
+  topo.watertight = watertight;
+
+  // Vertex fans: the triangles around a vertex must form one cycle. Count them by linking the
+  // triangles of a vertex that share an edge at it.
+  bool manifold = watertight;
+  if (manifold) {
+    const std::size_t nv = mesh.vertices.size();
+    std::vector<std::uint32_t> start(nv + 1, 0);
+    for (const auto& t : mesh.triangles)
+      for (auto v : t) ++start[v + 1];
+    for (std::size_t v = 0; v < nv; ++v) start[v + 1] += start[v];
+    std::vector<std::uint32_t> fill(start.begin(), start.end() - 1), incident(start[nv]);
+    for (std::uint32_t f = 0; f < mesh.triangles.size(); ++f)
+      for (auto v : mesh.triangles[f]) incident[fill[v]++] = f;
+    // In a closed mesh each vertex's link is a union of cycles: (#triangles) link edges over
+    // (#neighbours) link vertices. One cycle <=> the link is connected.
+    std::vector<std::pair<std::uint32_t, std::uint32_t>> link;
+    std::vector<std::uint32_t> nodes;
+    for (std::uint32_t v = 0; v < nv && manifold; ++v) {
+      if (start[v] == start[v + 1]) continue;
+      link.clear();
+      nodes.clear();
+      for (auto i = start[v]; i < start[v + 1]; ++i) {
+        const auto& t = mesh.triangles[incident[i]];
+        const int at = t[0] == v ? 0 : (t[1] == v ? 1 : 2);
+        link.emplace_back(t[(at + 1) % 3], t[(at + 2) % 3]);
+        nodes.push_back(t[(at + 1) % 3]);
+        nodes.push_back(t[(at + 2) % 3]);
+      }
+      std::sort(nodes.begin(), nodes.end());
+      nodes.erase(std::unique(nodes.begin(), nodes.end()), nodes.end());
+      UnionFind uf(nodes.size());
+      auto id = [&](std::uint32_t x) {
+        return std::uint32_t(std::lower_bound(nodes.begin(), nodes.end(), x) - nodes.begin());
+      };
+      for (auto [a, b] : link) uf.unite(id(a), id(b));
+      for (std::uint32_t n = 0; n < nodes.size(); ++n)
+        if (uf.find(n) != 0) manifold = false;
+    }
+  }
+  topo.manifold = manifold;
+  topo.volume_ml = signed_volume_mm3(mesh) / 1000.0;
+  return topo;
+}
+
+std::vector<Mesh> connected_components(const Mesh& mesh) {
+  check_indices(mesh, "connected_components");
+  int n = 0;
+  const auto label = vertex_components(mesh, &n);
+  std::vector<Mesh> out(n);
+  std::vector<std::uint32_t> new_index(mesh.vertices.size(), 0);
+  for (std::uint32_t v = 0; v < mesh.vertices.size(); ++v) {
+    if (label[v] < 0) continue;
+    auto& m = out[label[v]];
+    new_index[v] = static_cast<std::uint32_t>(m.vertices.size());
+    m.vertices.push_back(mesh.vertices[v]);
+  }
+  for (const auto& t : mesh.triangles)
+    out[label[t[0]]].triangles.push_back({new_index[t[0]], new_index[t[1]], new_index[t[2]]});
+  return out;
+}
+
+bool encloses(const Mesh& mesh, const Vec3f& p_mm) {
+  check_indices(mesh, "encloses");
+  // A ray along an irrational direction practically never meets an edge or a vertex exactly.
+  const Eigen::Vector3d dir = Eigen::Vector3d(1.0, 0.000317 * std::sqrt(2.0), 0.000271 * std::sqrt(3.0)).normalized();
+  const Eigen::Vector3d o = p_mm.cast<double>();
+  int hits = 0;
+  for (const auto& t : mesh.triangles) {
+    // Möller–Trumbore.
+    const Eigen::Vector3d a = mesh.vertices[t[0]].cast<double>();
+    const Eigen::Vector3d e1 = mesh.vertices[t[1]].cast<double>() - a;
+    const Eigen::Vector3d e2 = mesh.vertices[t[2]].cast<double>() - a;
+    const Eigen::Vector3d pv = dir.cross(e2);
+    const double det = e1.dot(pv);
+    if (std::abs(det) < 1e-300) continue;
+    const Eigen::Vector3d tv = o - a;
+    const double u = tv.dot(pv) / det;
+    if (u < 0.0 || u > 1.0) continue;
+    const Eigen::Vector3d qv = tv.cross(e1);
+    const double w = dir.dot(qv) / det;
+    if (w < 0.0 || u + w > 1.0) continue;
+    if (e2.dot(qv) / det > 0.0) ++hits;
+  }
+  return hits % 2 == 1;
+}
+
+Mesh component_enclosing(const Mesh& mesh, const Vec3f& seed_mm, bool* seed_enclosed) {
+  auto comps = connected_components(mesh);
+  int best = -1;
+  double best_volume = 0.0;
+  for (int c = 0; c < static_cast<int>(comps.size()); ++c) {
+    if (!encloses(comps[c], seed_mm)) continue;
+    const double vol = std::abs(signed_volume_mm3(comps[c]));
+    if (best < 0 || vol < best_volume) {
+      best = c;
+      best_volume = vol;
+    }
+  }
+  if (seed_enclosed) *seed_enclosed = best >= 0;
+  if (best < 0) {
+    for (int c = 0; c < static_cast<int>(comps.size()); ++c)
+      if (best < 0 || comps[c].triangles.size() > comps[best].triangles.size()) best = c;
+  }
+  if (best < 0) return {};
+  return std::move(comps[best]);
+}
+
+}  // namespace sonomesh::reconstruct

@@ -1,0 +1,176 @@
+#pragma once
+/// @file
+/// @brief Second step of the two-step segmentation (method.md §4-6): opening the balloon at its
+/// self-intersections, Kazhdan's FFT reconstruction of an indicator function from oriented points
+/// (Kazhdan, SGP 2005), marching cubes, the component around the seed, topology checks, label
+/// volumes and mesh files.
+///
+/// Positions are in millimetres throughout. Caller bugs (mismatched array lengths, indices out of
+/// range, bad options) throw std::invalid_argument naming the argument; numerical outcomes (seed
+/// not enclosed, open mesh) are reported in result structs; file errors are returned as values.
+
+#include <array>
+#include <cstdint>
+#include <filesystem>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "segment/mesh.h"
+#include "volume/volume.h"
+
+namespace sonomesh::reconstruct {
+
+using segment::Mesh;
+using segment::PointCloud;
+using segment::StopReason;
+using volume::Vec3f;
+
+// ---------------------------------------------------------------------------------------------
+// Oriented samples.
+
+/// Opening (method.md §4, paper §4 "Opening of mesh for topology adaption"): marks the triangles
+/// that touch a SelfIntersection ("type 1") vertex, recomputes the normal of every vertex of a
+/// marked triangle from its unmarked triangles only (normalised sum of unit triangle normals,
+/// eq. 2), and deletes the marked triangles and the type-1 vertices. Returns the remaining
+/// vertices with outward unit normals and area weights (one third of the area of the adjacent
+/// remaining triangles). Vertices left without any triangle are dropped (they have no normal).
+/// @throws std::invalid_argument if stop.size() != balloon.vertices.size() or a triangle indexes
+///         a vertex that does not exist.
+PointCloud open_balloon(const Mesh& balloon, const std::vector<StopReason>& stop);
+
+/// Vertex samples of a closed mesh: outward unit normals (eq. 2) and one-third-area weights.
+/// @throws std::invalid_argument if a triangle indexes a vertex that does not exist.
+PointCloud oriented_samples(const Mesh& mesh);
+
+// ---------------------------------------------------------------------------------------------
+// Kazhdan's FFT reconstruction.
+
+/// How the divergence of the splatted normal field is formed.
+enum class DivergenceMode : std::uint8_t {
+  Spectral,          // three forward FFTs of the splatted field, i k·V̂ exactly (most accurate)
+  CentralDifference  // central-difference divergence on the grid, one forward FFT (faster)
+};
+
+struct PoissonOptions {
+  float cell_mm = 0.5f;            // grid cell edge; pass the volume's voxel size
+  float padding_fraction = 0.15f;  // margin per side, fraction of the largest extent; >= 0.10
+  float smoothing_cells = 1.0f;    // Gaussian sigma applied to the splatted normals, in cells
+  int max_grid_dim = 320;          // the cell grows when an axis would need more cells than this
+  int fft_threads = 2;             // FFTW threads (the target machine has two cores)
+  DivergenceMode divergence = DivergenceMode::Spectral;
+  bool measure_fft_plans = false;  // FFTW_MEASURE: slow first plan per grid size, faster after
+};
+
+/// The indicator function χ on the FFT grid: larger inside than outside, the surface is χ = iso.
+struct IndicatorGrid {
+  volume::Volume chi;  // Float32; origin/spacing of the FFT grid (write with volume::write_vdb)
+  float iso = 0.0f;    // area-weighted mean of χ at the sample positions
+  float cell_mm = 0.0f;  // the cell actually used (options.cell_mm unless max_grid_dim forced more)
+};
+
+/// Solves Δχ = ∇·V for the area-weighted, Gaussian-smoothed normal field V by FFT (Kazhdan 2005):
+/// χ̂(k) = i k·V̂(k) / |k|², χ̂(0) = 0, sign chosen so that χ is larger inside. The grid is the
+/// bounding box of the points padded by options.padding_fraction on each side, its dimensions
+/// rounded up to 2^a 3^b 5^c. FFTW plans are cached per grid size (thread-safe).
+/// @throws std::invalid_argument on empty or mismatched arrays, non-finite samples, or options
+///         out of range (cell_mm <= 0, padding_fraction < 0.1, smoothing_cells < 0, ...).
+IndicatorGrid poisson_indicator(const PointCloud& samples, const PoissonOptions& options = {});
+
+// ---------------------------------------------------------------------------------------------
+// Marching cubes and mesh analysis.
+
+/// Marching cubes (Lorensen & Cline 1987) on a Float32 volume; inside is field > iso. Ambiguous
+/// faces are resolved by the asymptotic decider from the face's own four values, so neighbouring
+/// cubes agree and the mesh is watertight; one vertex per grid edge (welded, indexed). Grid
+/// border samples count as outside, so the result is always closed. Triangles are oriented
+/// outward (counter-clockwise seen from outside). Uses two threads.
+/// @throws std::invalid_argument if the volume is not Float32 or has fewer than 2 samples per axis.
+Mesh marching_cubes(const volume::Volume& field, float iso);
+
+struct Topology {
+  int components = 0;  // connected by shared vertices
+  int vertices = 0;    // referenced vertices
+  int edges = 0;
+  int faces = 0;
+  int euler = 0;       // V − E + F
+  int genus = 0;       // Σ over components of (2 − χ_c)/2; meaningful when watertight
+  bool watertight = false;  // every edge has exactly two faces with opposite orientations
+  bool manifold = false;    // watertight and every vertex has one fan of triangles around it
+  double volume_ml = 0.0;   // enclosed volume (divergence theorem), mm³/1000; > 0 when outward
+};
+
+/// Counts and checks of a triangle mesh. @throws std::invalid_argument on out-of-range indices.
+Topology analyze_topology(const Mesh& mesh);
+
+/// Splits a mesh into its connected components (by shared vertices), vertices renumbered.
+std::vector<Mesh> connected_components(const Mesh& mesh);
+
+/// True if p_mm lies inside the closed mesh (ray parity along a slightly jittered direction).
+bool encloses(const Mesh& closed_mesh, const Vec3f& p_mm);
+
+/// The component that encloses seed_mm; if several do, the smallest of them (the innermost
+/// shell); if none does, the largest one (by triangle count) and *seed_enclosed = false.
+Mesh component_enclosing(const Mesh& mesh, const Vec3f& seed_mm, bool* seed_enclosed = nullptr);
+
+// ---------------------------------------------------------------------------------------------
+// The whole second step.
+
+struct SurfaceResult {
+  Mesh mesh;                 // the component around the seed, outward, in mm
+  Topology topology;         // of `mesh`
+  volume::Volume indicator;  // χ on the FFT grid (Float32)
+  float iso = 0.0f;
+  float cell_mm = 0.0f;
+  std::array<int, 3> grid_dims{};
+  int components_before_selection = 0;  // components marching cubes produced
+  bool seed_enclosed = false;           // false: fell back to the largest component
+  double reconstruct_ms = 0.0;          // splat + FFT solve + iso
+  double mesh_ms = 0.0;                 // marching cubes + component selection
+};
+
+/// poisson_indicator, marching_cubes on χ − iso, then the component that encloses the seed.
+/// @throws std::invalid_argument as poisson_indicator does.
+SurfaceResult reconstruct_surface(const PointCloud& samples, const Vec3f& seed_mm,
+                                  const PoissonOptions& options = {});
+
+/// Label volume on the grid of `like` (UInt8, same dims/spacing/origin): 1 where the voxel centre
+/// is inside the closed mesh, by ray parity along x per (j, k) row. Rays are offset by a tiny,
+/// irrational fraction of a voxel so they never pass exactly through mesh vertices or edges.
+volume::Volume rasterize_labels(const Mesh& closed_mesh, const volume::Volume& like);
+
+// ---------------------------------------------------------------------------------------------
+// Mesh files. Writers and readers return an error instead of throwing (a full disk or a bad file
+// is an outcome, not a bug); a stop array of the wrong length is a bug and throws.
+
+struct MeshIoError {
+  enum class Code { OpenFailed, WriteFailed, BadHeader, Unsupported, Truncated, BadIndex };
+  Code code = Code::WriteFailed;
+  std::string message;  // one line naming the file and the problem
+};
+
+/// Binary little-endian PLY with exactly `float x y z` and `list uchar int vertex_indices`.
+std::optional<MeshIoError> write_ply(const Mesh& mesh, const std::filesystem::path& path);
+/// As write_ply plus a per-vertex `uchar stop` (StopReason codes) after z.
+/// @throws std::invalid_argument if stop.size() != mesh.vertices.size().
+std::optional<MeshIoError> write_balloon_ply(const Mesh& mesh, const std::vector<StopReason>& stop,
+                                             const std::filesystem::path& path);
+/// Binary STL (facet normals from the triangle winding).
+std::optional<MeshIoError> write_stl(const Mesh& mesh, const std::filesystem::path& path);
+/// Wavefront OBJ (`v` and 1-based `f` lines).
+std::optional<MeshIoError> write_obj(const Mesh& mesh, const std::filesystem::path& path);
+/// By extension: .ply, .stl or .obj (anything else is an Unsupported error).
+std::optional<MeshIoError> write_mesh(const Mesh& mesh, const std::filesystem::path& path);
+
+struct MeshReadResult {
+  Mesh mesh;
+  std::vector<std::uint8_t> stop;  // the per-vertex `stop` property if the file has one
+  std::optional<MeshIoError> error;
+  explicit operator bool() const { return !error.has_value(); }
+};
+
+/// Reads PLY (ascii or binary_little_endian; any scalar property types; polygons fanned into
+/// triangles). Needs x, y, z vertex properties and a vertex_indices (or vertex_index) face list.
+MeshReadResult read_ply(const std::filesystem::path& path);
+
+}  // namespace sonomesh::reconstruct

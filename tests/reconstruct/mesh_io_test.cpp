@@ -1,0 +1,113 @@
+#include <gtest/gtest.h>
+
+#include <fstream>
+#include <iterator>
+
+#include "shapes.h"
+
+namespace sonomesh::reconstruct {
+namespace {
+
+namespace fs = std::filesystem;
+
+fs::path temp(const std::string& name) {
+  const fs::path dir = fs::temp_directory_path() / ("sonomesh_reconstruct_" + std::to_string(::getpid()));
+  fs::create_directories(dir);
+  return dir / name;
+}
+
+std::string slurp(const fs::path& p) {
+  std::ifstream in(p, std::ios::binary);
+  return {std::istreambuf_iterator<char>(in), {}};
+}
+
+TEST(MeshIo, PlyHeaderIsExactlyTheDesignedOne) {
+  const Mesh m = test::uv_sphere(Vec3f(1, 2, 3), 4.0f, 10, 11);
+  const auto path = temp("sphere.ply");
+  ASSERT_FALSE(write_ply(m, path).has_value());
+  const std::string bytes = slurp(path);
+  const std::string header =
+      "ply\nformat binary_little_endian 1.0\nelement vertex 102\nproperty float x\nproperty float y\n"
+      "property float z\nelement face 200\nproperty list uchar int vertex_indices\nend_header\n";
+  ASSERT_EQ(bytes.substr(0, header.size()), header);
+  EXPECT_EQ(bytes.size(), header.size() + 102 * 12 + 200 * 13);
+}
+
+TEST(MeshIo, PlyRoundTripIsExact) {
+  const Mesh m = test::uv_sphere(Vec3f(1.25f, -2.5f, 3.125f), 4.3f, 12, 9);
+  const auto path = temp("round.ply");
+  ASSERT_FALSE(write_ply(m, path).has_value());
+  const MeshReadResult r = read_ply(path);
+  ASSERT_TRUE(r) << r.error->message;
+  EXPECT_EQ(r.mesh.vertices, m.vertices);
+  EXPECT_EQ(r.mesh.triangles, m.triangles);
+  EXPECT_TRUE(r.stop.empty());
+}
+
+TEST(MeshIo, BalloonPlyCarriesStopReasons) {
+  const Mesh m = test::uv_sphere(Vec3f::Zero(), 4.0f, 10, 11);
+  std::vector<StopReason> stop(m.vertices.size());
+  for (std::size_t i = 0; i < stop.size(); ++i) stop[i] = static_cast<StopReason>(i % 5);
+  const auto path = temp("balloon.ply");
+  ASSERT_FALSE(write_balloon_ply(m, stop, path).has_value());
+  EXPECT_NE(slurp(path).find("property float z\nproperty uchar stop\nelement face"), std::string::npos);
+  const MeshReadResult r = read_ply(path);
+  ASSERT_TRUE(r);
+  ASSERT_EQ(r.stop.size(), stop.size());
+  for (std::size_t i = 0; i < stop.size(); ++i) EXPECT_EQ(r.stop[i], static_cast<std::uint8_t>(stop[i]));
+  EXPECT_EQ(r.mesh.vertices, m.vertices);
+  EXPECT_THROW(write_balloon_ply(m, std::vector<StopReason>(2), path), std::invalid_argument);
+}
+
+TEST(MeshIo, ReadsAsciiPlyWithQuads) {
+  const auto path = temp("ascii.ply");
+  std::ofstream(path) << "ply\nformat ascii 1.0\ncomment hand made\nelement vertex 4\n"
+                         "property double x\nproperty double y\nproperty double z\nproperty uchar red\n"
+                         "element face 1\nproperty list uchar uint vertex_indices\nend_header\n"
+                         "0 0 0 255\n1 0 0 0\n1 1 0 0\n0 1 0 0\n4 0 1 2 3\n";
+  const MeshReadResult r = read_ply(path);
+  ASSERT_TRUE(r) << r.error->message;
+  EXPECT_EQ(r.mesh.vertices.size(), 4u);
+  ASSERT_EQ(r.mesh.triangles.size(), 2u);
+  EXPECT_EQ(r.mesh.vertices[2], Vec3f(1, 1, 0));
+}
+
+TEST(MeshIo, BadPlyFilesGiveErrorsNotCrashes) {
+  const Mesh m = test::uv_sphere(Vec3f::Zero(), 4.0f, 10, 11);
+  const auto path = temp("truncated.ply");
+  ASSERT_FALSE(write_ply(m, path).has_value());
+  const std::string bytes = slurp(path);
+  std::ofstream(path, std::ios::binary | std::ios::trunc) << bytes.substr(0, bytes.size() - 20);
+  const MeshReadResult t = read_ply(path);
+  ASSERT_FALSE(t);
+  EXPECT_EQ(t.error->code, MeshIoError::Code::Truncated);
+  EXPECT_FALSE(read_ply(temp("missing.ply")));
+  std::ofstream(temp("junk.ply")) << "not a ply\n";
+  EXPECT_EQ(read_ply(temp("junk.ply")).error->code, MeshIoError::Code::BadHeader);
+  std::ofstream(temp("badindex.ply")) << "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\n"
+                                         "property float y\nproperty float z\nelement face 1\n"
+                                         "property list uchar int vertex_indices\nend_header\n0 0 0\n3 0 1 2\n";
+  EXPECT_EQ(read_ply(temp("badindex.ply")).error->code, MeshIoError::Code::BadIndex);
+}
+
+TEST(MeshIo, StlAndObjAreWritten) {
+  const Mesh m = test::uv_sphere(Vec3f::Zero(), 4.0f, 10, 11);
+  ASSERT_FALSE(write_mesh(m, temp("s.stl")).has_value());
+  EXPECT_EQ(fs::file_size(temp("s.stl")), 84u + 50u * 200u);
+  ASSERT_FALSE(write_mesh(m, temp("s.obj")).has_value());
+  const std::string obj = slurp(temp("s.obj"));
+  EXPECT_EQ(std::count(obj.begin(), obj.end(), 'v'), 102);
+  EXPECT_EQ(std::count(obj.begin(), obj.end(), 'f'), 200);
+  EXPECT_NE(obj.find("\nf 1 "), std::string::npos);  // 1-based
+}
+
+TEST(MeshIo, WriteFailuresAreErrorValues) {
+  const Mesh m = test::uv_sphere(Vec3f::Zero(), 4.0f, 10, 11);
+  const auto e = write_ply(m, "/nonexistent-dir/x.ply");
+  ASSERT_TRUE(e.has_value());
+  EXPECT_EQ(e->code, MeshIoError::Code::OpenFailed);
+  EXPECT_EQ(write_mesh(m, temp("x.vtk"))->code, MeshIoError::Code::Unsupported);
+}
+
+}  // namespace
+}  // namespace sonomesh::reconstruct
