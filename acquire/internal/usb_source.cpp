@@ -36,8 +36,8 @@ namespace {
 using Clock = std::chrono::steady_clock;
 using Result = tl::expected<RawVolume, AcquireError>;
 
-constexpr int kTransfers = 8;
-constexpr int kTransferBytes = 512 * 1024;
+constexpr int kTransfers = 4;
+constexpr int kTransferBytes = 1024 * 1024;
 constexpr std::chrono::milliseconds kMaxEventWait{100};  // bounded so interrupt/deadline are seen
 // When libusb's poll reports ready without completing anything (usbfs nodes that are always
 // "ready", e.g. under emulation), wait this long before asking again instead of spinning.
