@@ -33,6 +33,21 @@ void fill_pix_format(v4l2_pix_format& pix, int width, int height, bool y16) {
 
 FakeV4l2Device::FakeV4l2Device(Options options) : options_(std::move(options)), y16_(options_.y16) {
   testbed_ = umockdev_testbed_new();
+  add_device();
+  handler_ = umockdev_ioctl_base_new();
+  g_signal_connect(handler_, "handle-ioctl", G_CALLBACK(&FakeV4l2Device::on_ioctl), this);
+  GError* error = nullptr;
+  const std::string dev = device_path();
+  if (!umockdev_testbed_attach_ioctl(testbed_, dev.c_str(), handler_, &error)) {
+    std::string msg = error ? error->message : "unknown";
+    g_clear_error(&error);
+    throw std::runtime_error("FakeV4l2Device: attach ioctl: " + msg);
+  }
+}
+
+std::string FakeV4l2Device::syspath() const { return "/sys/devices/platform/fakeprobe/video4linux/" + options_.name; }
+
+void FakeV4l2Device::add_device() {
   const std::string& n = options_.name;
   const std::string description =
       "P: /devices/platform/fakeprobe/video4linux/" + n + "\n"
@@ -51,16 +66,45 @@ FakeV4l2Device::FakeV4l2Device(Options options) : options_(std::move(options)), 
     throw std::runtime_error("FakeV4l2Device: add device: " + msg);
   }
   backing_path_ = std::string(umockdev_testbed_get_root_dir(testbed_)) + "/dev/" + n;
+  if (backing_fd_ >= 0) ::close(backing_fd_);
   backing_fd_ = ::open(backing_path_.c_str(), O_RDWR | O_CLOEXEC);
   if (backing_fd_ < 0) throw std::runtime_error("FakeV4l2Device: open backing file " + backing_path_);
-  handler_ = umockdev_ioctl_base_new();
-  g_signal_connect(handler_, "handle-ioctl", G_CALLBACK(&FakeV4l2Device::on_ioctl), this);
+}
+
+void FakeV4l2Device::unplug() {
+  {
+    std::lock_guard lock(mutex_);
+    if (!plugged_) return;
+    plugged_ = false;
+    streaming_ = false;
+    buffer_count_ = 0;
+    queued_buffers_.clear();
+    frames_.clear();
+  }
+  umockdev_testbed_uevent(testbed_, syspath().c_str(), "remove");
+  umockdev_testbed_remove_device(testbed_, syspath().c_str());
+}
+
+void FakeV4l2Device::replug() {
+  {
+    std::lock_guard lock(mutex_);
+    if (plugged_) return;
+  }
+  add_device();
   const std::string dev = device_path();
+  umockdev_testbed_detach_ioctl(testbed_, dev.c_str(), nullptr);
+  GError* error = nullptr;
   if (!umockdev_testbed_attach_ioctl(testbed_, dev.c_str(), handler_, &error)) {
     std::string msg = error ? error->message : "unknown";
     g_clear_error(&error);
-    throw std::runtime_error("FakeV4l2Device: attach ioctl: " + msg);
+    throw std::runtime_error("FakeV4l2Device: re-attach ioctl: " + msg);
   }
+  {
+    std::lock_guard lock(mutex_);
+    plugged_ = true;
+    frame_counter_ = 0;
+  }
+  umockdev_testbed_uevent(testbed_, syspath().c_str(), "add");
 }
 
 FakeV4l2Device::~FakeV4l2Device() {
@@ -125,7 +169,10 @@ bool FakeV4l2Device::handle_ioctl(UMockdevIoctlClient* client) {
   int err = 0;
   {
     std::lock_guard lock(mutex_);
-    switch (request) {
+    if (!plugged_) {
+      result = -1;
+      err = ENODEV;  // what a driver answers after its device went away
+    } else switch (request) {
       case VIDIOC_QUERYCAP: {
         auto* cap = reinterpret_cast<v4l2_capability*>(data->data);
         std::memset(cap, 0, sizeof *cap);

@@ -37,6 +37,7 @@ class FakeV4l2Device {
 
   /// "/dev/video0" as the code under test sees it.
   std::string device_path() const { return "/dev/" + options_.name; }
+  std::string syspath() const;
   /// Bytes of one frame in the current format (width * height * bytes per pixel).
   std::size_t frame_bytes() const;
   /// Queues one frame for the next DQBUF (must be frame_bytes() long).
@@ -47,7 +48,13 @@ class FakeV4l2Device {
   std::size_t frames_delivered() const;
   bool streaming() const;
 
+  /// Cable pulled: every ioctl fails with ENODEV, the node leaves /dev and sysfs ("remove" uevent).
+  void unplug();
+  /// Back again: a fresh device (no buffers, not streaming, empty frame queue).
+  void replug();
+
  private:
+  void add_device();
   static int on_ioctl(UMockdevIoctlBase* handler, UMockdevIoctlClient* client, void* self);
   bool handle_ioctl(UMockdevIoctlClient* client);
   int bytes_per_pixel() const { return y16_ ? 2 : 1; }
@@ -65,6 +72,7 @@ class FakeV4l2Device {
   std::deque<std::uint32_t> queued_buffers_;
   std::deque<std::vector<std::uint8_t>> frames_;  // a frame of {} is a dropped frame marker
   bool streaming_ = false;
+  bool plugged_ = true;
   std::uint32_t frame_counter_ = 0;
   std::size_t delivered_ = 0;
 };
