@@ -123,12 +123,18 @@ std::optional<VolumeIoError> write_volume(const Volume& volume, const std::files
 /// 3D Gaussian smoothing, sigma in mm per axis (so anisotropic spacing is handled), separable
 /// (OpenCV), both cores. Returns a Float32 volume on the same grid. sigma_mm <= 0 only converts.
 Volume smooth_gaussian(const Volume& input, float sigma_mm);
+/// Same, into `out`, reusing its voxel buffer when it already is a Float32 volume of the same dims
+/// (a per-volume pipeline then allocates nothing; fresh 8 MB buffers cost page faults). `out` must
+/// not be `input`.
+void smooth_gaussian(const Volume& input, float sigma_mm, Volume& out);
 
 /// Central-difference gradient of a volume, in intensity units per mm (one-sided at the borders).
 struct Gradient {
   Volume gx, gy, gz;  // Float32, same grid as the input
 };
 Gradient central_gradient(const Volume& input);
+/// Same, into `out`, reusing its buffers when they match (see smooth_gaussian).
+void central_gradient(const Volume& input, Gradient& out);
 
 /// Trilinear sample at a point in mm; points outside are clamped to the border voxels.
 float sample_mm(const Volume& volume, const Vec3f& p_mm);
@@ -140,6 +146,8 @@ Vec3f sample_gradient_mm(const Gradient& gradient, const Vec3f& p_mm);
 
 /// A sparse boolean grid whose index space is the volume's (voxel size = spacing, same origin):
 /// the balloon's occupancy A_t and label grids. Backed by an openvdb::BoolGrid.
+/// get() goes through a cached accessor, so one grid must not be used from several threads at once
+/// (not even for concurrent get()); use one grid per thread.
 class OccupancyGrid {
  public:
   explicit OccupancyGrid(const Volume& like);

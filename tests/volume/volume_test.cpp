@@ -172,3 +172,31 @@ TEST(Sampling, TrilinearIsExactOnLinearFunctionsAndClampsOutside) {
   flat.u8()[flat.linear_index(1, 1, 0)] = 8;
   EXPECT_FLOAT_EQ(sample_mm(flat, Vec3f(1.5f, 1.0f, 3.0f)), 4.0f);
 }
+
+TEST(Smoothing, IntoOverloadsReuseBuffersAndMatchFreshResults) {
+  Volume v(Vec3i(20, 18, 16), Vec3f(1.0f, 0.8f, 1.5f), Vec3f(1, 2, 3), VoxelType::UInt8);
+  std::mt19937 rng(4);
+  for (auto& x : v.u8()) x = static_cast<std::uint8_t>(rng());
+  const Volume fresh = smooth_gaussian(v, 1.2f);
+  Volume out(v.dims(), v.spacing_mm(), Vec3f(9, 9, 9), VoxelType::Float32);
+  const float* buffer = out.f32().data();
+  smooth_gaussian(v, 1.2f, out);
+  EXPECT_EQ(out.f32().data(), buffer);  // reused
+  EXPECT_EQ(out.f32(), fresh.f32());
+  EXPECT_EQ(out.origin_mm(), v.origin_mm());
+  Volume wrong(Vec3i(2, 2, 2), Vec3f(1, 1, 1), Vec3f(0, 0, 0), VoxelType::UInt16);
+  smooth_gaussian(v, 1.2f, wrong);  // replaced by a volume of the right kind
+  EXPECT_EQ(wrong.f32(), fresh.f32());
+  EXPECT_EQ(wrong.spacing_mm(), v.spacing_mm());
+  EXPECT_THROW(smooth_gaussian(out, 1.0f, out), std::invalid_argument);
+
+  const Gradient g1 = central_gradient(fresh);
+  Gradient g2;
+  central_gradient(fresh, g2);
+  const float* gy = g2.gy.f32().data();
+  central_gradient(fresh, g2);
+  EXPECT_EQ(g2.gy.f32().data(), gy);
+  EXPECT_EQ(g1.gx.f32(), g2.gx.f32());
+  EXPECT_EQ(g1.gy.f32(), g2.gy.f32());
+  EXPECT_EQ(g1.gz.f32(), g2.gz.f32());
+}

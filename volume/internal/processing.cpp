@@ -1,6 +1,7 @@
 // Smoothing, gradients and trilinear sampling.
 #include <algorithm>
 #include <cmath>
+#include <memory>
 #include <stdexcept>
 
 #include <opencv2/core.hpp>
@@ -98,16 +99,44 @@ inline float interpolate(const T* d, const Trilinear& t) {
   return c0 + t.fz * (c1 - c0);
 }
 
+// Makes `out` a Float32 volume on the grid of `like`, keeping its buffer if it already is one.
+void prepare_float(const Volume& like, Volume& out) {
+  if (out.type() == VoxelType::Float32 && !out.empty() && out.dims() == like.dims() &&
+      out.spacing_mm() == like.spacing_mm()) {
+    out.set_origin_mm(like.origin_mm());
+    return;
+  }
+  out = Volume(like.dims(), like.spacing_mm(), like.origin_mm(), VoxelType::Float32);
+}
+
+// Intermediate buffer of the separable passes, kept per thread: a fresh multi-megabyte buffer
+// per call costs page faults comparable to the filtering itself.
+float* scratch(std::size_t n) {
+  thread_local std::vector<float> buffer;
+  if (buffer.size() < n || buffer.size() > 4 * n) {
+    buffer = std::vector<float>();
+    buffer.resize(n);
+  }
+  return buffer.data();
+}
+
 }  // namespace
 
 Volume smooth_gaussian(const Volume& input, float sigma_mm) {
+  Volume out;
+  smooth_gaussian(input, sigma_mm, out);
+  return out;
+}
+
+void smooth_gaussian(const Volume& input, float sigma_mm, Volume& out) {
   if (input.empty()) throw std::invalid_argument("smooth_gaussian: empty volume");
   if (!std::isfinite(sigma_mm)) throw std::invalid_argument("smooth_gaussian: sigma_mm not finite");
+  if (&input == &out) throw std::invalid_argument("smooth_gaussian: output aliases input");
   const Vec3i& dims = input.dims();
-  Volume out(dims, input.spacing_mm(), input.origin_mm(), VoxelType::Float32);
+  prepare_float(input, out);
   if (sigma_mm <= 0.0f) {
     out.f32() = input.to_float();
-    return out;
+    return;
   }
   const int nx = dims.x(), ny = dims.y(), nz = dims.z();
   const cv::Mat kx = gaussian_kernel(sigma_mm / input.spacing_mm().x());
@@ -118,8 +147,7 @@ Volume smooth_gaussian(const Volume& input, float sigma_mm) {
   const int depth = cv_depth(input.type());
   const std::size_t in_elem = CV_ELEM_SIZE(depth);
   const auto* in_bytes = static_cast<const unsigned char*>(raw_data(input));
-  std::vector<float> tmp(input.voxel_count());
-  float* tmp_data = tmp.data();
+  float* tmp_data = scratch(input.voxel_count());
   float* out_data = out.f32().data();
   const std::size_t slice = static_cast<std::size_t>(nx) * ny;
 
@@ -146,16 +174,23 @@ Volume smooth_gaussian(const Volume& input, float sigma_mm) {
                       cv::BORDER_REPLICATE | cv::BORDER_ISOLATED);
     }
   });
-  return out;
 }
 
 Gradient central_gradient(const Volume& input) {
+  Gradient g;
+  central_gradient(input, g);
+  return g;
+}
+
+void central_gradient(const Volume& input, Gradient& g) {
   if (input.empty()) throw std::invalid_argument("central_gradient: empty volume");
+  if (&input == &g.gx || &input == &g.gy || &input == &g.gz)
+    throw std::invalid_argument("central_gradient: output aliases input");
   const Vec3i& dims = input.dims();
   const int nx = dims.x(), ny = dims.y(), nz = dims.z();
-  Gradient g{Volume(dims, input.spacing_mm(), input.origin_mm(), VoxelType::Float32),
-             Volume(dims, input.spacing_mm(), input.origin_mm(), VoxelType::Float32),
-             Volume(dims, input.spacing_mm(), input.origin_mm(), VoxelType::Float32)};
+  prepare_float(input, g.gx);
+  prepare_float(input, g.gy);
+  prepare_float(input, g.gz);
   std::vector<float> converted;
   const float* f = nullptr;
   if (input.type() == VoxelType::Float32) {
@@ -168,28 +203,45 @@ Gradient central_gradient(const Volume& input) {
   float* gx = g.gx.f32().data();
   float* gy = g.gy.f32().data();
   float* gz = g.gz.f32().data();
-  const std::size_t sx = 1, sy = static_cast<std::size_t>(nx), sz = sy * ny;
+  const std::size_t sy = static_cast<std::size_t>(nx), sz = sy * ny;
 
-  // Difference along one axis at index c of n: central inside, one-sided at the ends, 0 if n == 1.
-  auto diff = [](const float* p, std::size_t stride, int c, int n, float inv_h) {
-    if (n == 1) return 0.0f;
-    if (c == 0) return (p[stride] - p[0]) * inv_h;
-    if (c == n - 1) return (p[0] - p[-static_cast<std::ptrdiff_t>(stride)]) * inv_h;
-    return (p[stride] - p[-static_cast<std::ptrdiff_t>(stride)]) * (0.5f * inv_h);
+  // Per row, the neighbours along y and z are whole rows: pick them (and the step, central inside,
+  // one-sided at the ends, none on a 1-voxel axis) once, then run branch-free loops over x.
+  struct Neighbours {
+    std::ptrdiff_t lo, hi;  // row offsets of the two samples
+    float scale;            // 1 / distance between them in mm (0 on a 1-voxel axis)
+  };
+  auto neighbours = [](int c, int n, std::ptrdiff_t stride, float inv_h) {
+    if (n == 1) return Neighbours{0, 0, 0.0f};
+    if (c == 0) return Neighbours{0, stride, inv_h};
+    if (c == n - 1) return Neighbours{-stride, 0, inv_h};
+    return Neighbours{-stride, stride, 0.5f * inv_h};
   };
   cv::parallel_for_(cv::Range(0, nz), [&](const cv::Range& r) {
-    for (int k = r.start; k < r.end; ++k)
+    for (int k = r.start; k < r.end; ++k) {
+      const Neighbours nzb = neighbours(k, nz, static_cast<std::ptrdiff_t>(sz), inv.z());
       for (int j = 0; j < ny; ++j) {
+        const Neighbours nyb = neighbours(j, ny, static_cast<std::ptrdiff_t>(sy), inv.y());
         const std::size_t row = k * sz + j * sy;
         const float* p = f + row;
+        float* ox = gx + row;
+        float* oy = gy + row;
+        float* oz = gz + row;
         for (int i = 0; i < nx; ++i) {
-          gx[row + i] = diff(p + i, sx, i, nx, inv.x());
-          gy[row + i] = diff(p + i, sy, j, ny, inv.y());
-          gz[row + i] = diff(p + i, sz, k, nz, inv.z());
+          oy[i] = (p[i + nyb.hi] - p[i + nyb.lo]) * nyb.scale;
+          oz[i] = (p[i + nzb.hi] - p[i + nzb.lo]) * nzb.scale;
         }
+        if (nx == 1) {
+          ox[0] = 0.0f;
+          continue;
+        }
+        const float half = 0.5f * inv.x();
+        for (int i = 1; i < nx - 1; ++i) ox[i] = (p[i + 1] - p[i - 1]) * half;
+        ox[0] = (p[1] - p[0]) * inv.x();
+        ox[nx - 1] = (p[nx - 1] - p[nx - 2]) * inv.x();
       }
+    }
   });
-  return g;
 }
 
 float sample_mm(const Volume& volume, const Vec3f& p_mm) {
