@@ -205,7 +205,16 @@ class UsbSource final : public Source {
     timeval tv{static_cast<time_t>(us / 1000000), static_cast<suseconds_t>(us % 1000000)};
     progress_ = false;
     const int r = libusb_handle_events_timeout_completed(ctx_, &tv, nullptr);
-    if (r == LIBUSB_ERROR_NO_DEVICE) link_lost_ = true;
+    if (r == LIBUSB_ERROR_NO_DEVICE) {
+      link_lost_ = true;
+    } else if (r < 0 && r != LIBUSB_ERROR_INTERRUPTED && r != LIBUSB_ERROR_TIMEOUT) {
+      // A persistently failing event loop would otherwise spin here forever: treat it as a
+      // broken link and start over with a fresh context.
+      if (++consecutive_errors_ > 16) {
+        lost_detail_ = std::string("event handling: ") + libusb_error_name(r);
+        link_lost_ = true;
+      }
+    }
     if (needs_clear_halt_) {
       needs_clear_halt_ = false;
       libusb_clear_halt(handle_, endpoint_);
