@@ -125,6 +125,12 @@ TEST(Protocol, HeaderLayoutMatchesTheSpec) {
   EXPECT_EQ(encode_heartbeat(1, 2).size(), 68u);
 }
 
+TEST(Protocol, Crc32IsZlibIeee) {
+  const char* text = "123456789";
+  EXPECT_EQ(crc32(reinterpret_cast<const std::uint8_t*>(text), 9), 0xCBF43926u);
+  EXPECT_EQ(crc32(nullptr, 0), 0u);
+}
+
 TEST(Protocol, EncodeRefusesInconsistentVolumes) {
   RawVolume v = make_volume(1, {4, 4, 4});
   v.voxels.pop_back();
