@@ -209,31 +209,47 @@ Mesh marching_cubes(const volume::Volume& field, float iso) {
     return border ? std::min(v, -1e-30f) : v;
   };
 
-  std::vector<std::uint8_t> inside(n_points);
+  // Inside flags, and per x-row whether the row is all outside (0), all inside (1) or mixed (2):
+  // most of the padded grid is far from the surface, and whole rows are skipped below.
+  std::vector<std::uint8_t> inside(n_points), row_state(std::size_t(ny) * nz);
   internal::parallel_chunks(0, nz, threads, [&](int k0, int k1, int) {
     for (int k = k0; k < k1; ++k)
-      for (int j = 0; j < ny; ++j)
-        for (int i = 0; i < nx; ++i) inside[i + j * sy + k * sz] = value(i, j, k) > 0.0f;
+      for (int j = 0; j < ny; ++j) {
+        std::uint8_t* row = &inside[j * sy + k * sz];
+        int count = 0;
+        for (int i = 0; i < nx; ++i) count += row[i] = value(i, j, k) > 0.0f;
+        row_state[j + std::size_t(ny) * k] = count == 0 ? 0 : (count == nx ? 1 : 2);
+      }
   });
+  auto state = [&](int j, int k) { return row_state[j + std::size_t(ny) * k]; };
+  // Can the edges between row (j, k) and row (j2, k2) cross the surface?
+  auto rows_differ = [&](int j, int k, int j2, int k2) {
+    const int a = state(j, k), b = state(j2, k2);
+    return a == 2 || b == 2 || a != b;
+  };
 
   // One vertex per crossed grid edge, numbered layer by layer so the threads need no locking.
   // The index array is left uninitialised: only entries of crossed edges are ever read.
   std::unique_ptr<std::int32_t[]> edge_vertex(new std::int32_t[3 * n_points]);
   std::vector<int> layer_count(nz, 0);
   const std::size_t step[3] = {sx, sy, sz};
-  const int lim[3] = {nx, ny, nz};
-  auto crosses = [&](std::size_t p, int axis, int i, int j, int k) {
-    const int c[3] = {i, j, k};
-    return c[axis] + 1 < lim[axis] && inside[p] != inside[p + step[axis]];
+  // Visits the crossed edges leaving the points of row (j, k): fn(i, axis).
+  auto for_crossed_edges = [&](int j, int k, auto&& fn) {
+    const std::uint8_t* row = &inside[j * sy + k * sz];
+    if (state(j, k) == 2)
+      for (int i = 0; i + 1 < nx; ++i)
+        if (row[i] != row[i + 1]) fn(i, 0);
+    if (j + 1 < ny && rows_differ(j, k, j + 1, k))
+      for (int i = 0; i < nx; ++i)
+        if (row[i] != row[i + sy]) fn(i, 1);
+    if (k + 1 < nz && rows_differ(j, k, j, k + 1))
+      for (int i = 0; i < nx; ++i)
+        if (row[i] != row[i + sz]) fn(i, 2);
   };
   internal::parallel_chunks(0, nz, threads, [&](int k0, int k1, int) {
     for (int k = k0; k < k1; ++k) {
       int count = 0;
-      for (int j = 0; j < ny; ++j)
-        for (int i = 0; i < nx; ++i) {
-          const std::size_t p = i + j * sy + k * sz;
-          for (int a = 0; a < 3; ++a) count += crosses(p, a, i, j, k);
-        }
+      for (int j = 0; j < ny; ++j) for_crossed_edges(j, k, [&](int, int) { ++count; });
       layer_count[k] = count;
     }
   });
@@ -246,20 +262,16 @@ Mesh marching_cubes(const volume::Volume& field, float iso) {
     for (int k = k0; k < k1; ++k) {
       int index = layer_offset[k];
       for (int j = 0; j < ny; ++j)
-        for (int i = 0; i < nx; ++i) {
-          const std::size_t p = i + j * sy + k * sz;
-          for (int a = 0; a < 3; ++a) {
-            if (!crosses(p, a, i, j, k)) continue;
-            const float f0 = value(i, j, k);
-            const float f1 = value(i + (a == 0), j + (a == 1), k + (a == 2));
-            float t = f0 / (f0 - f1);
-            t = std::isfinite(t) ? std::clamp(t, 0.0f, 1.0f) : 0.5f;
-            Vec3f ijk{float(i), float(j), float(k)};
-            ijk[a] += t;
-            mesh.vertices[index] = origin + spacing.cwiseProduct(ijk);
-            edge_vertex[3 * p + a] = index++;
-          }
-        }
+        for_crossed_edges(j, k, [&](int i, int a) {
+          const float f0 = value(i, j, k);
+          const float f1 = value(i + (a == 0), j + (a == 1), k + (a == 2));
+          float t = f0 / (f0 - f1);
+          t = std::isfinite(t) ? std::clamp(t, 0.0f, 1.0f) : 0.5f;
+          Vec3f ijk{float(i), float(j), float(k)};
+          ijk[a] += t;
+          mesh.vertices[index] = origin + spacing.cwiseProduct(ijk);
+          edge_vertex[3 * (i + j * sy + k * sz) + a] = index++;
+        });
     }
   });
 
@@ -274,13 +286,22 @@ Mesh marching_cubes(const volume::Volume& field, float iso) {
     Local& out = locals[t];
     std::uint32_t vid[16];
     for (int k = k0; k < k1; ++k)
-      for (int j = 0; j + 1 < ny; ++j)
+      for (int j = 0; j + 1 < ny; ++j) {
+        const int s0 = state(j, k);
+        if (s0 != 2 && s0 == state(j + 1, k) && s0 == state(j, k + 1) && s0 == state(j + 1, k + 1))
+          continue;  // the four rows around this row of cells agree everywhere: no surface
+        // Corner c = cx + 2 cy + 4 cz: the four rows give bits 0, 2, 4, 6 at x and 1, 3, 5, 7 at x + 1.
+        const std::uint8_t* r00 = &inside[j * sy + k * sz];
+        const std::uint8_t* r10 = r00 + sy;
+        const std::uint8_t* r01 = r00 + sz;
+        const std::uint8_t* r11 = r00 + sy + sz;
+        int column = r00[0] | r10[0] << 2 | r01[0] << 4 | r11[0] << 6;
         for (int i = 0; i + 1 < nx; ++i) {
-          const std::size_t p = i + j * sy + k * sz;
-          int mask = 0;
-          for (int c = 0; c < 8; ++c)
-            mask |= inside[p + (c & 1) * sx + ((c >> 1) & 1) * sy + ((c >> 2) & 1) * sz] << c;
+          const int next = r00[i + 1] | r10[i + 1] << 2 | r01[i + 1] << 4 | r11[i + 1] << 6;
+          const int mask = column | next << 1;
+          column = next;
           if (mask == 0 || mask == 255) continue;
+          const std::size_t p = i + j * sy + k * sz;
           int decisions = 0;
           if (const int amb = tab.ambiguous[mask]) {
             for (int fi = 0; fi < 6; ++fi) {
@@ -315,6 +336,7 @@ Mesh marching_cubes(const volume::Volume& field, float iso) {
           }
           for (const auto& tri : cs.triangles) out.triangles.push_back({vid[tri[0]], vid[tri[1]], vid[tri[2]]});
         }
+      }
   });
   std::size_t n_tri = 0;
   for (const auto& l : locals) n_tri += l.triangles.size();
