@@ -38,6 +38,35 @@ void validate(const PhantomSpec& spec) {
   if (!std::isfinite(spec.time_s)) bad("time_s must be finite");
 }
 
+// The deepest voxel of the target (largest distance to the background). The distance transform
+// runs on every `stride`-th voxel (about 64 samples per axis): the seed only has to be well inside,
+// and this keeps large volumes cheap. Ties go to the lowest index, so the choice is deterministic.
+Vec3i deepest_voxel(const volume::Volume& truth) {
+  const Vec3i dims = truth.dims();
+  const int stride = std::max(1, dims.minCoeff() / 64);
+  const Vec3i sub_dims = (dims - Vec3i::Ones()) / stride + Vec3i::Ones();
+  volume::Volume sub(sub_dims, truth.spacing_mm() * static_cast<float>(stride), truth.origin_mm(),
+                     volume::VoxelType::UInt8);
+  for (int k = 0; k < sub_dims.z(); ++k)
+    for (int j = 0; j < sub_dims.y(); ++j)
+      for (int i = 0; i < sub_dims.x(); ++i)
+        sub.u8()[sub.linear_index(i, j, k)] =
+            truth.u8()[truth.linear_index(i * stride, j * stride, k * stride)];
+  const std::vector<float> d2 = internal::squared_distance_inside_mm2(sub);
+  std::size_t best = 0;
+  float best_d2 = -1.0f;
+  for (std::size_t t = 0; t < d2.size(); ++t)
+    if (sub.u8()[t] && d2[t] > best_d2) {
+      best_d2 = d2[t];
+      best = t;
+    }
+  if (best_d2 < 0.0f)
+    throw std::invalid_argument("PhantomSpec: the target has no voxel at this size/spacing");
+  const int nx = sub_dims.x(), ny = sub_dims.y();
+  return Vec3i(static_cast<int>(best % nx), static_cast<int>((best / nx) % ny),
+               static_cast<int>(best / (static_cast<std::size_t>(nx) * ny))) * stride;
+}
+
 }  // namespace
 
 const std::vector<std::string>& phantom_names() {
@@ -75,73 +104,47 @@ Phantom make_phantom(const PhantomSpec& spec) {
 
   auto& img = out.image.u8();
   auto& truth = out.truth.u8();
-  std::vector<float> level(needle ? img.size() : 0);    // before the shadow, when there is one
-  std::vector<float> needle_w(needle ? img.size() : 0);  // needle occupancy 0..1
+  std::vector<float> att(nz);
+  for (int k = 0; k < nz; ++k)
+    att[k] = gain * std::pow(10.0f, -db_per_mm * h.z() * static_cast<float>(k) / 20.0f);
 
-  internal::parallel_chunks(0, nz, [&](int k0, int k1) {
-    for (int k = k0; k < k1; ++k) {
-      const float z_mm = origin_mm.z() + h.z() * static_cast<float>(k);
-      const float att = gain * std::pow(10.0f, -db_per_mm * (z_mm - origin_mm.z()) / 20.0f);
-      for (int j = 0; j < ny; ++j)
+  // Rows (fixed j) in parallel, each walked from the transducer down (k ascending), so the needle's
+  // acoustic shadow can be accumulated per column in the same pass: everything deeper along +z
+  // than the needle in that column is darker.
+  internal::parallel_chunks(0, ny, [&](int j0, int j1) {
+    std::vector<float> trans(nx);
+    for (int j = j0; j < j1; ++j) {
+      std::fill(trans.begin(), trans.end(), 1.0f);
+      const float y_mm = origin_mm.y() + h.y() * static_cast<float>(j);
+      for (int k = 0; k < nz; ++k) {
+        const float z_mm = origin_mm.z() + h.z() * static_cast<float>(k);
+        const std::size_t row = static_cast<std::size_t>(k) * slice + static_cast<std::size_t>(j) * nx;
         for (int i = 0; i < nx; ++i) {
-          const std::size_t idx = static_cast<std::size_t>(k) * slice + static_cast<std::size_t>(j) * nx + i;
-          const Vec3f p(origin_mm.x() + h.x() * static_cast<float>(i),
-                        origin_mm.y() + h.y() * static_cast<float>(j), z_mm);
-          const float sdf = shape.target_sdf_mm(p);
+          const std::size_t idx = row + i;
+          const Vec3f p(origin_mm.x() + h.x() * static_cast<float>(i), y_mm, z_mm);
+          float sdf, needle_sdf;
+          shape.evaluate_mm(p, sdf, needle_sdf);
           truth[idx] = sdf < 0.0f ? 1 : 0;
           const float inside = smoothstep01(0.5f - sdf / (2.0f * edge_mm));
           float echo = 1.0f - spec.contrast * inside;
           float speckle_strength = spec.speckle;
-          float wn = 0.0f;
+          float shadow = 1.0f;
           if (needle) {
-            wn = smoothstep01(0.5f - shape.needle_sdf_mm(p) / (2.0f * edge_mm));
+            const float wn = smoothstep01(0.5f - needle_sdf / (2.0f * edge_mm));
             echo = echo * (1.0f - wn) + kNeedleEcho * wn;
             speckle_strength *= 1.0f - (1.0f - kNeedleSpeckleKeep) * wn;
+            shadow = std::max(trans[i], kShadowFloor);
+            if (wn > 0.0f) trans[i] *= std::exp(-needle_absorb_per_mm * wn * h.z());
           }
           const float grain = speckle ? (1.0f - speckle_strength + speckle_strength * (*speckle)[idx]) : 1.0f;
-          const float v = att * echo * grain;
-          if (needle) {
-            level[idx] = v;
-            needle_w[idx] = wn;
-          } else {
-            img[idx] = static_cast<std::uint8_t>(std::clamp(std::lround(v), 0L, 255L));
-          }
+          const float v = att[k] * echo * grain * shadow;
+          img[idx] = static_cast<std::uint8_t>(std::clamp(std::lround(v), 0L, 255L));
         }
+      }
     }
   });
 
-  if (needle) {
-    // Acoustic shadow: the needle absorbs the beam, so everything deeper along +z in the same
-    // column is darker. Columns are independent; walk each one from the transducer down.
-    internal::parallel_chunks(0, ny, [&](int j0, int j1) {
-      std::vector<float> trans(nx);
-      for (int j = j0; j < j1; ++j) {
-        std::fill(trans.begin(), trans.end(), 1.0f);
-        for (int k = 0; k < nz; ++k)
-          for (int i = 0; i < nx; ++i) {
-            const std::size_t idx = static_cast<std::size_t>(k) * slice + static_cast<std::size_t>(j) * nx + i;
-            const float v = level[idx] * std::max(trans[i], kShadowFloor);
-            img[idx] = static_cast<std::uint8_t>(std::clamp(std::lround(v), 0L, 255L));
-            trans[i] *= std::exp(-needle_absorb_per_mm * needle_w[idx] * h.z());
-          }
-      }
-    });
-  }
-
-  // Seed: the deepest voxel of the target (largest distance to the background); ties go to the
-  // lowest linear index so the choice is deterministic.
-  const std::vector<float> d2 = internal::squared_distance_inside_mm2(out.truth);
-  std::size_t best = 0;
-  float best_d2 = -1.0f;
-  for (std::size_t t = 0; t < d2.size(); ++t)
-    if (truth[t] && d2[t] > best_d2) {
-      best_d2 = d2[t];
-      best = t;
-    }
-  if (best_d2 < 0.0f)
-    throw std::invalid_argument("PhantomSpec: the target has no voxel at this size/spacing");
-  out.seed_index = Vec3i(static_cast<int>(best % nx), static_cast<int>((best / nx) % ny),
-                         static_cast<int>(best / slice));
+  out.seed_index = deepest_voxel(out.truth);
   out.seed_mm = out.image.index_to_mm(out.seed_index.cast<float>());
   return out;
 }

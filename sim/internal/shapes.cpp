@@ -134,6 +134,21 @@ float Shape::target_sdf_mm(const Vec3f& p_mm) const {
   return scale_ * rest_target_sdf(to_rest(p_mm));
 }
 
+void Shape::evaluate_mm(const Vec3f& p_mm, float& target_sdf_mm, float& needle_sdf_mm) const {
+  const Vec3f q = to_rest(p_mm);
+  if (!needle_) {
+    target_sdf_mm = scale_ * rest_target_sdf(q);
+    needle_sdf_mm = std::numeric_limits<float>::max();
+    return;
+  }
+  // Cyst minus needle, as in rest_target_sdf, sharing the needle distance.
+  const float needle = rest_needle_sdf(q);
+  const float cyst = ellipsoid_sdf(Vec3f(q.dot(u_), q.dot(v_), q.dot(w_)),
+                                   Vec3f(kCystAxes[0], kCystAxes[1], kCystAxes[2]) * half_extent_mm_);
+  target_sdf_mm = scale_ * std::max(cyst, -needle);
+  needle_sdf_mm = scale_ * needle;
+}
+
 float Shape::needle_sdf_mm(const Vec3f& p_mm) const {
   if (!needle_) return std::numeric_limits<float>::max();
   return scale_ * rest_needle_sdf(to_rest(p_mm));

@@ -39,9 +39,11 @@ class Shape {
   /// Signed distance to the target surface in mm (negative inside; exact for sphere and tori,
   /// a close bound for ellipsoids), at the spec's time.
   float target_sdf_mm(const Vec3f& p_mm) const;
-  /// Distance to the needle surface in mm (negative inside the needle); nullopt if no needle.
+  /// Distance to the needle surface in mm (negative inside the needle); FLT_MAX if no needle.
   bool has_needle() const { return needle_.has_value(); }
   float needle_sdf_mm(const Vec3f& p_mm) const;
+  /// Both distances at once (the per-voxel hot path: the breathing transform is undone once).
+  void evaluate_mm(const Vec3f& p_mm, float& target_sdf_mm, float& needle_sdf_mm) const;
   /// The needle at the spec's time (moved and scaled with the target).
   std::optional<Needle> needle_at_time() const;
   /// Centre of the volume in mm and the half extent R in mm.
