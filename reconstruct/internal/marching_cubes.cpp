@@ -200,7 +200,8 @@ Mesh marching_cubes(const volume::Volume& field, float iso) {
   const std::size_t sx = 1, sy = static_cast<std::size_t>(nx), sz = sy * ny;
   const std::size_t n_points = sz * nz;
   const float* f = field.f32().data();
-  const int threads = internal::default_threads();
+  // Thread start-up costs more than a small grid's whole run.
+  const int threads = n_points < (1u << 15) ? 1 : internal::default_threads();
 
   // Border samples count as outside (value pushed just below iso) so every surface closes.
   auto value = [&](int i, int j, int k) -> float {

@@ -58,6 +58,35 @@ TEST(Poisson, TorusComesOutWithGenusOne) {
   EXPECT_FALSE(encloses(r.mesh, c));
 }
 
+TEST(Poisson, SpherePiercedByANeedleChannelHasGenusOne) {
+  // The biopsy case of DESIGN.md: a solid sphere with a straight channel through it.
+  const float R = 9.0f, a = 2.0f, zc = std::sqrt(R * R - a * a);
+  PointCloud s;
+  const PointCloud ball = test::sphere_samples(Vec3f::Zero(), R, 6000);
+  for (std::size_t i = 0; i < ball.points.size(); ++i) {
+    if (std::hypot(ball.points[i].x(), ball.points[i].y()) < a) continue;  // the channel's mouths
+    s.points.push_back(ball.points[i]);
+    s.normals.push_back(ball.normals[i]);
+    s.area_mm2.push_back(ball.area_mm2[i]);
+  }
+  const int nu = 40, nzs = 90;
+  for (int i = 0; i < nu; ++i)
+    for (int k = 0; k < nzs; ++k) {
+      const float u = 2 * kPi * (i + 0.5f) / nu, z = -zc + 2 * zc * (k + 0.5f) / nzs;
+      const Vec3f radial(std::cos(u), std::sin(u), 0.0f);
+      s.points.push_back(a * radial + Vec3f(0, 0, z));
+      s.normals.push_back(-radial);  // out of the solid = into the channel
+      s.area_mm2.push_back(2 * kPi * a / nu * 2 * zc / nzs);
+    }
+  const SurfaceResult r = reconstruct_surface(s, Vec3f(5.5f, 0, 0), {.cell_mm = 0.4f});
+  EXPECT_TRUE(r.seed_enclosed);
+  EXPECT_TRUE(r.topology.watertight);
+  EXPECT_TRUE(r.topology.manifold);
+  EXPECT_EQ(r.topology.components, 1);
+  EXPECT_EQ(r.topology.genus, 1);
+  EXPECT_FALSE(encloses(r.mesh, Vec3f::Zero()));  // the channel is open
+}
+
 TEST(Poisson, SphereWithACapRemovedIsClosedAgain) {
   // What opening leaves behind: samples with a hole where the balloon met itself.
   const Vec3f c(0, 0, 0);
