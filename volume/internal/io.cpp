@@ -59,6 +59,10 @@ std::optional<VolumeIoError> axis_geometry(const std::filesystem::path& path,
                             ") is not along a coordinate axis; oblique or permuted volumes are "
                             "not supported, resample them first");
     out.spacing_mm[a] = static_cast<float>(len);
+    if (!std::isfinite(out.spacing_mm[a]) || out.spacing_mm[a] <= 0.0f)
+      return io_error(Code::BadHeader, path,
+                      "spacing of axis " + std::to_string(a) + " (" + std::to_string(len) +
+                          ") is out of range");
     out.flip[a] = d[a] < 0.0;
   }
   return std::nullopt;
@@ -127,6 +131,8 @@ VolumeReadResult read_volume(const std::filesystem::path& path, const ReadOption
     if (ext == ".mha" || ext == ".mhd") return read_metaimage(path, options);
   } catch (const std::bad_alloc&) {
     return {Volume{}, io_error(Code::IoError, path, "out of memory while reading")};
+  } catch (const std::exception& e) {  // e.g. Volume refusing geometry no check above caught
+    return {Volume{}, io_error(Code::BadHeader, path, e.what())};
   }
   return {Volume{}, io_error(Code::UnknownFormat, path,
                              "unknown extension '" + ext + "' (expected .nrrd, .nhdr, .mha or .mhd)")};

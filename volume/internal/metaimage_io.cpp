@@ -244,7 +244,9 @@ VolumeReadResult read_metaimage(const std::filesystem::path& path, const ReadOpt
     for (const char* k : keys) {
       if (!h.has(k)) continue;
       const auto v = parse_numbers<double>(h.get(k));
-      if (!v || v->size() != 3 || !std::all_of(v->begin(), v->end(), [](double x) { return std::isfinite(x); })) {
+      if (!v || v->size() != 3 || !std::all_of(v->begin(), v->end(), [](double x) {
+            return std::isfinite(static_cast<float>(x));
+          })) {
         err = io_error(Code::BadHeader, path, std::string("bad ") + k + " '" + h.get(k) + "'");
         return def;
       }

@@ -154,6 +154,7 @@ std::optional<VolumeIoError> geometry(const std::filesystem::path& path, const N
   }
   if (auto err = axis_geometry(path, dirs, axes)) return err;
   origin = Vec3f(static_cast<float>(org[0]), static_cast<float>(org[1]), static_cast<float>(org[2]));
+  if (!origin.allFinite()) return io_error(Code::BadHeader, path, "space origin out of range");
   return std::nullopt;
 }
 
@@ -173,6 +174,7 @@ VolumeReadResult read_nrrd(const std::filesystem::path& path, const ReadOptions&
   }
 
   std::lock_guard<std::mutex> lock(teem_mutex());
+  nrrdStateVerboseIO = 0;  // library code stays quiet; errors come back through biff
   // Pass 1: header only.
   NrrdPtr header(nrrdNew());
   IoStatePtr hio(nrrdIoStateNew());
