@@ -135,6 +135,9 @@ IndicatorGrid poisson_indicator(const PointCloud& s, const PoissonOptions& o) {
     check(s.points[n].allFinite() && s.normals[n].allFinite() && std::isfinite(s.area_mm2[n]) &&
               s.area_mm2[n] >= 0.0f,
           "sample " + std::to_string(n) + " is not finite (or has a negative area)");
+  double total_area = 0.0;
+  for (float a : s.area_mm2) total_area += a;
+  check(total_area > 0.0, "the samples carry no area (all area_mm2 are zero)");
   check(std::isfinite(o.cell_mm) && o.cell_mm > 0.0f, "cell_mm must be positive");
   check(o.padding_fraction >= 0.1f && o.padding_fraction <= 2.0f,
         "padding_fraction must be in [0.1, 2] (the FFT is periodic)");

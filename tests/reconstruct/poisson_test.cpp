@@ -182,6 +182,9 @@ TEST(Poisson, RejectsBadInput) {
   EXPECT_THROW(poisson_indicator(PointCloud{}), std::invalid_argument);
   EXPECT_THROW(poisson_indicator(s, {.padding_fraction = 0.05f}), std::invalid_argument);
   EXPECT_THROW(poisson_indicator(s, {.cell_mm = 0.0f}), std::invalid_argument);
+  PointCloud weightless = s;
+  std::fill(weightless.area_mm2.begin(), weightless.area_mm2.end(), 0.0f);
+  EXPECT_THROW(poisson_indicator(weightless), std::invalid_argument);
   s.area_mm2.pop_back();
   EXPECT_THROW(poisson_indicator(s), std::invalid_argument);
   PointCloud nan = test::sphere_samples(Vec3f::Zero(), 5.0f, 100);
