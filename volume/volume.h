@@ -110,6 +110,10 @@ enum class Compression { Raw, Gzip };
 /// Reads NRRD (.nrrd, .nhdr + detached data; raw or gzip; through Teem) or MetaImage (.mha,
 /// .mhd + .raw; raw or zlib), by extension. Axis-aligned direction matrices with flips are
 /// applied to the data so that index space maps to mm as above; other directions are refused.
+/// uint8/uint16/float load as such; other numeric types (int8/16/32, uint32, double) are converted
+/// to Float32. NRRD in RAS or LAS space is converted to LPS (the space written). The mm position of
+/// every file voxel is kept, so after a flip its index changes (file j -> ny-1-j): use mm, not file
+/// indices. Sizes are checked against options.max_voxels and the data on disk before allocating.
 VolumeReadResult read_volume(const std::filesystem::path& path, const ReadOptions& options = {});
 
 /// Writes NRRD (.nrrd attached, .nhdr detached) or MetaImage (.mha, .mhd + .raw) by extension.

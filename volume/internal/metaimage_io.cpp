@@ -404,7 +404,7 @@ std::optional<VolumeIoError> write_metaimage(const Volume& volume, const std::fi
   const std::filesystem::path data_path =
       std::filesystem::path(path).replace_extension(compression == Compression::Gzip ? ".zraw" : ".raw");
 
-  auto num = [](double v) {
+  auto num = [](float v) {  // shortest form of the float: 10.1, not 10.100000381469727
     char buf[32];
     const auto r = std::to_chars(buf, buf + sizeof buf, v);
     return std::string(buf, r.ptr);

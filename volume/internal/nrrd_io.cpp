@@ -6,6 +6,7 @@
 // header is read first (nrrdIoStateSkipData) and validated against ReadOptions and the size of the
 // data on disk before the real read.
 #include <algorithm>
+#include <charconv>
 #include <climits>
 #include <cmath>
 #include <cstdlib>
@@ -116,6 +117,16 @@ std::optional<VoxelType> target_type(int nrrd_type) {
     case nrrdTypeDouble: return VoxelType::Float32;
     default: return std::nullopt;
   }
+}
+
+// The double whose shortest decimal form is the float's (10.1f -> 10.1, not 10.100000381...), so
+// headers show the numbers the caller meant.
+double decimal(float v) {
+  char buf[32];
+  const auto end = std::to_chars(buf, buf + sizeof buf, v).ptr;
+  double d = v;
+  std::from_chars(buf, end, d);
+  return d;
 }
 
 template <typename Src>
@@ -310,10 +321,10 @@ std::optional<VolumeIoError> write_nrrd(const Volume& volume, const std::filesys
   // "left-posterior-superior" is what 3D Slicer, ITK and pynrrd expect for a world space in mm.
   if (nrrdSpaceSet(nrrd.get(), nrrdSpaceLeftPosteriorSuperior))
     return io_error(Code::IoError, path, biff_message());
-  const double origin[3] = {o.x(), o.y(), o.z()};
+  const double origin[3] = {decimal(o.x()), decimal(o.y()), decimal(o.z())};
   if (nrrdSpaceOriginSet(nrrd.get(), origin)) return io_error(Code::IoError, path, biff_message());
-  double dx[NRRD_SPACE_DIM_MAX] = {s.x(), 0, 0}, dy[NRRD_SPACE_DIM_MAX] = {0, s.y(), 0},
-         dz[NRRD_SPACE_DIM_MAX] = {0, 0, s.z()};
+  double dx[NRRD_SPACE_DIM_MAX] = {decimal(s.x()), 0, 0}, dy[NRRD_SPACE_DIM_MAX] = {0, decimal(s.y()), 0},
+         dz[NRRD_SPACE_DIM_MAX] = {0, 0, decimal(s.z())};
   nrrdAxisInfoSet_va(nrrd.get(), nrrdAxisInfoSpaceDirection, dx, dy, dz);
   nrrdAxisInfoSet_va(nrrd.get(), nrrdAxisInfoKind, nrrdKindSpace, nrrdKindSpace, nrrdKindSpace);
   nrrdAxisInfoSet_va(nrrd.get(), nrrdAxisInfoCenter, nrrdCenterCell, nrrdCenterCell, nrrdCenterCell);
