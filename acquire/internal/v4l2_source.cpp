@@ -523,14 +523,18 @@ class V4l2Source final : public Source {
 
   void take_untagged(const Frame& f) {
     if (!have_untagged_base_) {
+      // A (re)started stream: its frame counter starts anew, local volume numbers continue, so
+      // a sequence number never names two different volumes.
       have_untagged_base_ = true;
       frame_base_ = f.driver_sequence;
+      seq_base_ = next_local_seq_;
     }
     // The driver's frame counter also counts dropped frames; volume k owns frames
     // base + k*N .. base + k*N + N-1.
     const std::uint64_t rel = static_cast<std::uint32_t>(f.driver_sequence - frame_base_);
     const std::uint64_t n = static_cast<std::uint64_t>(spec_.slices);
-    const std::uint64_t seq = rel / n;
+    const std::uint64_t seq = seq_base_ + rel / n;
+    next_local_seq_ = std::max(next_local_seq_, seq + 1);
     const int index = static_cast<int>(rel % n);
     if (discarding_ && seq == discard_seq_) return;
     discarding_ = false;
@@ -600,6 +604,8 @@ class V4l2Source final : public Source {
   std::uint64_t discard_seq_ = 0;
   bool have_untagged_base_ = false;
   std::uint32_t frame_base_ = 0;
+  std::uint64_t seq_base_ = 0;        // untagged: local sequence of the stream's first volume
+  std::uint64_t next_local_seq_ = 0;  // untagged: first sequence not used yet
   SequenceTracker tracker_;
 };
 
