@@ -9,6 +9,8 @@
 #include <fstream>
 #include <random>
 #include <sstream>
+#include <thread>
+#include <atomic>
 #include <string>
 #include <tuple>
 
@@ -561,4 +563,23 @@ TEST(Malformed, EveryTruncationAndHeaderMutationIsHandled) {
         }
       }
     }
+}
+
+TEST(Threads, ConcurrentReadsAndWritesAreIndependent) {
+  TempDir dir;
+  const Volume v = random_volume(VoxelType::UInt16);
+  std::vector<std::thread> threads;
+  std::atomic<int> ok{0};
+  for (int t = 0; t < 4; ++t)
+    threads.emplace_back([&, t] {
+      for (int n = 0; n < 10; ++n) {
+        const fs::path p = dir / ("t" + std::to_string(t) + (t % 2 ? ".nrrd" : ".mha"));
+        if (write_volume(v, p, n % 2 ? Compression::Gzip : Compression::Raw)) return;
+        const auto r = read_volume(p);
+        const auto bad = read_volume(dir / "missing.nrrd");
+        if (r && same_voxels(r.volume, v) && !bad) ++ok;
+      }
+    });
+  for (auto& th : threads) th.join();
+  EXPECT_EQ(ok.load(), 40);
 }
