@@ -1,6 +1,7 @@
 #include <CLI/CLI.hpp>
 #include <filesystem>
 #include <fstream>
+#include <iomanip>
 #include <iostream>
 #include <memory>
 #include <nlohmann/json.hpp>
@@ -49,7 +50,14 @@ bool is_volume_path(const std::filesystem::path& p) {
   return ext == ".nrrd" || ext == ".nhdr" || ext == ".mha" || ext == ".mhd";
 }
 
-nlohmann::json vec_json(const Vec3f& v) { return {v.x(), v.y(), v.z()}; }
+// Floats printed as the decimal a human typed (0.7, not 0.699999988).
+double num(float v) {
+  std::ostringstream text;
+  text << std::setprecision(7) << v;  // a float has ~7 significant digits; print no more
+  return std::stod(text.str());
+}
+
+nlohmann::json vec_json(const Vec3f& v) { return {num(v.x()), num(v.y()), num(v.z())}; }
 
 void run_generate(GenerateArgs& args) {
   PhantomSpec& spec = args.spec;
@@ -80,10 +88,10 @@ void run_generate(GenerateArgs& args) {
   j["spacing_mm"] = vec_json(h);
   j["origin_mm"] = vec_json(phantom.image.origin_mm());
   j["seed"] = spec.seed;
-  j["contrast"] = spec.contrast;
-  j["speckle"] = spec.speckle;
-  j["attenuation_db_per_cm"] = spec.attenuation_db_per_cm;
-  j["time_s"] = spec.time_s;
+  j["contrast"] = num(spec.contrast);
+  j["speckle"] = num(spec.speckle);
+  j["attenuation_db_per_cm"] = num(spec.attenuation_db_per_cm);
+  j["time_s"] = num(spec.time_s);
   j["axis"] = vec_json(spec.axis);
   j["image"] = out.filename().string();
   j["truth"] = truth_path.filename().string();
@@ -95,7 +103,7 @@ void run_generate(GenerateArgs& args) {
     j["needle"] = {{"point_mm", vec_json(needle->point_mm)},
                    {"direction", vec_json(needle->direction)},
                    {"tip_mm", vec_json(needle->point_mm + needle->direction * needle->tip_t_mm)},
-                   {"radius_mm", needle->radius_mm}};
+                   {"radius_mm", num(needle->radius_mm)}};
   }
   std::filesystem::path sidecar = out;
   sidecar.replace_extension(".json");

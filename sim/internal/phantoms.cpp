@@ -18,7 +18,7 @@ using internal::Shape;
 constexpr float kTissueLevel = 120.0f;
 constexpr float kNeedleEcho = 2.4f;       // needle brightness relative to tissue (saturates)
 constexpr float kNeedleSpeckleKeep = 0.3f;  // a specular needle is less speckled than tissue
-constexpr float kShadowFloor = 0.2f;      // scatter fills the shadow a little
+constexpr float kShadowFloor = 0.35f;     // scatter fills the shadow; the cyst stays visible in it
 
 float smoothstep01(float x) {
   x = std::clamp(x, 0.0f, 1.0f);

@@ -386,6 +386,42 @@ TEST(Breathing, TimeMovesTheTargetAndAPeriodBringsItBack) {
                                                          moved.seed_index.z())]);
 }
 
+TEST(Breathing, EveryPhantomStaysClearOfTheBorderAtItsExtremes) {
+  for (const auto& name : phantom_names())
+    for (float t : {1.0f, 3.0f})
+      for (const Vec3f& axis : {Vec3f(0, 0, 1), Vec3f(1, 1, 1)}) {
+        PhantomSpec s = spec_for(name, 48);
+        s.speckle = 0.0f;
+        s.time_s = t;
+        s.axis = axis;
+        const Phantom p = make_phantom(s);
+        const Vec3i d = p.truth.dims();
+        const int margin = 3;
+        std::size_t touching = 0;
+        for (int k = 0; k < d.z(); ++k)
+          for (int j = 0; j < d.y(); ++j)
+            for (int i = 0; i < d.x(); ++i) {
+              const bool border = i < margin || j < margin || k < margin || i >= d.x() - margin ||
+                                  j >= d.y() - margin || k >= d.z() - margin;
+              if (border) touching += p.truth.u8()[p.truth.linear_index(i, j, k)];
+            }
+        EXPECT_EQ(touching, 0u) << name << " t " << t << " axis " << axis.transpose();
+      }
+}
+
+TEST(TruthTopology, AnisotropicSpacingKeepsTheGenus) {
+  for (const std::string name : {"torus", "cyst-needle", "double-torus"}) {
+    PhantomSpec s = spec_for(name, 64);
+    s.spacing_mm = Vec3f(0.4f, 0.4f, 0.6f);
+    s.speckle = 0.0f;
+    const Phantom p = make_phantom(s);
+    const auto topo = solid_topology(p.truth);
+    EXPECT_EQ(topo.components, 1) << name;
+    EXPECT_EQ(topo.cavities, 0) << name;
+    EXPECT_EQ(topo.tunnels(), p.genus) << name;
+  }
+}
+
 // --- Errors and probe records --------------------------------------------------------------------
 
 TEST(Errors, BadSpecsThrowNamingTheField) {
