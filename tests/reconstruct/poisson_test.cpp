@@ -1,5 +1,7 @@
 #include <gtest/gtest.h>
 
+#include <thread>
+
 #include "reconstruct/internal/fft_plans.h"
 #include "shapes.h"
 
@@ -175,6 +177,23 @@ TEST(Poisson, SecondCallReusesTheCachedPlans) {
   const auto after = internal::fft_plan_stats();
   EXPECT_EQ(after.plans_created, before.plans_created);
   EXPECT_GT(after.cache_hits, before.cache_hits);
+}
+
+TEST(Poisson, ConcurrentCallsShareOnePlanPerGridSize) {
+  // A stretched cloud gives a grid shape no other test uses, so the plans are new here.
+  PointCloud s = test::sphere_samples(Vec3f(-1, 0, 2), 4.0f, 600);
+  for (auto& p : s.points) p = Vec3f(0.4f * p.x(), 3.1f * p.y(), p.z());
+  const PoissonOptions o{.cell_mm = 0.29f};
+  const auto before = internal::fft_plan_stats();
+  IndicatorGrid a, b;
+  std::thread t1([&] { a = poisson_indicator(s, o); });
+  std::thread t2([&] { b = poisson_indicator(s, o); });
+  t1.join();
+  t2.join();
+  EXPECT_EQ(internal::fft_plan_stats().plans_created - before.plans_created, 2u);  // r2c + c2r
+  ASSERT_EQ(a.chi.dims(), b.chi.dims());
+  EXPECT_EQ(a.chi.f32(), b.chi.f32());
+  EXPECT_EQ(a.iso, b.iso);
 }
 
 TEST(Poisson, RejectsBadInput) {
