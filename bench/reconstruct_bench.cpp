@@ -6,9 +6,9 @@
 #include <Eigen/Geometry>
 #include <algorithm>
 #include <chrono>
-#include <ctime>
 #include <cmath>
 #include <cstdio>
+#include <ctime>
 #include <functional>
 #include <string>
 #include <vector>
@@ -66,7 +66,8 @@ double median_ms(int runs, const std::function<void()>& fn, double* cpu = nullpt
     const double c0 = cpu_ms();
     const auto a = std::chrono::steady_clock::now();
     fn();
-    t.push_back(std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - a).count());
+    t.push_back(
+        std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - a).count());
     c.push_back(cpu_ms() - c0);
   }
   std::sort(t.begin(), t.end());
@@ -81,31 +82,41 @@ struct Case {
   float cell_mm;
   std::function<float(const Vec3f&)> distance;  // to the true surface, mm
   int genus;
+  Vec3f seed_mm;  // inside the solid
 };
 
 void run(const Case& c, reconstruct::DivergenceMode mode, int threads, bool measure) {
-  reconstruct::PoissonOptions o{.cell_mm = c.cell_mm, .fft_threads = threads, .divergence = mode,
+  reconstruct::PoissonOptions o{.cell_mm = c.cell_mm,
+                                .fft_threads = threads,
+                                .divergence = mode,
                                 .measure_fft_plans = measure};
   const auto first = std::chrono::steady_clock::now();
   reconstruct::IndicatorGrid g = reconstruct::poisson_indicator(c.samples, o);  // plans made here
   const double first_ms =
       std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - first).count();
   double rec_cpu = 0.0, mc_cpu = 0.0;
-  const double rec_ms = median_ms(9, [&] { g = reconstruct::poisson_indicator(c.samples, o); }, &rec_cpu);
+  const double rec_ms = median_ms(
+      9, [&] { g = reconstruct::poisson_indicator(c.samples, o); }, &rec_cpu);
   reconstruct::Mesh m;
-  const double mc_ms = median_ms(9, [&] { m = reconstruct::marching_cubes(g.chi, g.iso); }, &mc_cpu);
+  const double mc_ms = median_ms(
+      9, [&] { m = reconstruct::marching_cubes(g.chi, g.iso); }, &mc_cpu);
   reconstruct::Mesh kept;
-  const double sel_ms = median_ms(5, [&] { kept = reconstruct::component_enclosing(m, Vec3f(c.samples.points[0] * 0.0f + Vec3f(c.name[0] == 't' ? c.samples.points[0].norm() : 0.0f, 0, 0))); });
+  const double sel_ms =
+      median_ms(5, [&] { kept = reconstruct::component_enclosing(m, c.seed_mm); });
   const auto topo = reconstruct::analyze_topology(kept);
   double err = 0.0;
   for (const auto& v : kept.vertices) err += c.distance(v);
   err /= std::max<std::size_t>(1, kept.vertices.size());
-  std::printf("%-10s %-7s %dT %-4s grid %3dx%3dx%3d  samples %6zu  first %7.1f ms  reconstruct %6.1f ms (cpu %6.1f)  "
-              "mc %5.1f ms (cpu %5.1f)  select %5.1f ms  tris %6d  genus %d%s  watertight %d manifold %d  mean err %.3f cell\n",
-              c.name.c_str(), mode == reconstruct::DivergenceMode::Spectral ? "spectral" : "central", threads,
-              measure ? "meas" : "est", g.chi.dims().x(), g.chi.dims().y(), g.chi.dims().z(), c.samples.points.size(),
-              first_ms, rec_ms, rec_cpu, mc_ms, mc_cpu, sel_ms, topo.faces, topo.genus, topo.genus == c.genus ? "" : " (WRONG)",
-              topo.watertight, topo.manifold, err / g.cell_mm);
+  std::printf(
+      "%-10s %-7s %dT %-4s grid %3dx%3dx%3d  samples %6zu  first %7.1f ms  reconstruct %6.1f ms "
+      "(cpu %6.1f)  "
+      "mc %5.1f ms (cpu %5.1f)  select %5.1f ms  tris %6d  genus %d%s  watertight %d manifold %d  "
+      "mean err %.3f cell\n",
+      c.name.c_str(), mode == reconstruct::DivergenceMode::Spectral ? "spectral" : "central",
+      threads, measure ? "meas" : "est", g.chi.dims().x(), g.chi.dims().y(), g.chi.dims().z(),
+      c.samples.points.size(), first_ms, rec_ms, rec_cpu, mc_ms, mc_cpu, sel_ms, topo.faces,
+      topo.genus, topo.genus == c.genus ? "" : " (WRONG)", topo.watertight, topo.manifold,
+      err / g.cell_mm);
 }
 
 }  // namespace
@@ -114,13 +125,17 @@ int main() {
   // 128³ volume at 0.5 mm: a 60-voxel target is 30 mm across; the balloon's edges are ~1.5 voxels.
   std::vector<Case> cases;
   cases.push_back({"sphere128", sphere(15.0f, 0.75f), 0.5f,
-                   [](const Vec3f& p) { return std::abs(p.norm() - 15.0f); }, 0});
+                   [](const Vec3f& p) { return std::abs(p.norm() - 15.0f); }, 0, Vec3f::Zero()});
   cases.push_back({"torus128", torus(10.5f, 4.5f, 0.75f), 0.5f,
-                   [](const Vec3f& p) { return std::abs(std::hypot(std::hypot(p.x(), p.y()) - 10.5f, p.z()) - 4.5f); }, 1});
+                   [](const Vec3f& p) {
+                     return std::abs(std::hypot(std::hypot(p.x(), p.y()) - 10.5f, p.z()) - 4.5f);
+                   },
+                   1, Vec3f(10.5f, 0, 0)});
   cases.push_back({"sphere256", sphere(30.0f, 0.75f), 0.5f,
-                   [](const Vec3f& p) { return std::abs(p.norm() - 30.0f); }, 0});
+                   [](const Vec3f& p) { return std::abs(p.norm() - 30.0f); }, 0, Vec3f::Zero()});
   for (const auto& c : cases)
-    for (auto mode : {reconstruct::DivergenceMode::Spectral, reconstruct::DivergenceMode::CentralDifference})
+    for (auto mode :
+         {reconstruct::DivergenceMode::Spectral, reconstruct::DivergenceMode::CentralDifference})
       for (int threads : {1, 2}) run(c, mode, threads, false);
   for (const auto& c : cases) run(c, reconstruct::DivergenceMode::Spectral, 2, true);
   const auto stats = reconstruct::internal::fft_plan_stats();
@@ -129,10 +144,11 @@ int main() {
   // Label rasterisation of the 128³ result onto a 128³ grid.
   reconstruct::PoissonOptions o{.cell_mm = 0.5f};
   const auto r = reconstruct::reconstruct_surface(cases[0].samples, Vec3f::Zero(), o);
-  const volume::Volume like(volume::Vec3i(128, 128, 128), Vec3f::Constant(0.5f), Vec3f::Constant(-32.0f),
-                            volume::VoxelType::UInt8);
+  const volume::Volume like(volume::Vec3i(128, 128, 128), Vec3f::Constant(0.5f),
+                            Vec3f::Constant(-32.0f), volume::VoxelType::UInt8);
   const double lab_ms = median_ms(5, [&] { reconstruct::rasterize_labels(r.mesh, like); });
-  std::printf("rasterize_labels 128^3: %.1f ms; reconstruct_surface: reconstruct %.1f ms, mesh %.1f ms\n",
-              lab_ms, r.reconstruct_ms, r.mesh_ms);
+  std::printf(
+      "rasterize_labels 128^3: %.1f ms; reconstruct_surface: reconstruct %.1f ms, mesh %.1f ms\n",
+      lab_ms, r.reconstruct_ms, r.mesh_ms);
   return 0;
 }

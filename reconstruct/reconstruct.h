@@ -56,7 +56,7 @@ struct PoissonOptions {
   float cell_mm = 0.5f;            // grid cell edge; pass the volume's voxel size
   float padding_fraction = 0.15f;  // margin per side, fraction of the largest extent; >= 0.10
   float smoothing_cells = 1.0f;    // Gaussian sigma applied to the splatted normals, in cells
-  int max_grid_dim = 320;          // the cell grows when an axis would need more cells than this
+  int max_grid_dim = 256;          // the cell grows when an axis would need more cells than this
   int fft_threads = 2;             // FFTW threads (the target machine has two cores)
   DivergenceMode divergence = DivergenceMode::Spectral;
   bool measure_fft_plans = false;  // FFTW_MEASURE: slow first plan per grid size, faster after
@@ -64,8 +64,8 @@ struct PoissonOptions {
 
 /// The indicator function χ on the FFT grid: larger inside than outside, the surface is χ = iso.
 struct IndicatorGrid {
-  volume::Volume chi;  // Float32; origin/spacing of the FFT grid (write with volume::write_vdb)
-  float iso = 0.0f;    // area-weighted mean of χ at the sample positions
+  volume::Volume chi;    // Float32; origin/spacing of the FFT grid (write with volume::write_vdb)
+  float iso = 0.0f;      // area-weighted mean of χ at the sample positions
   float cell_mm = 0.0f;  // the cell actually used (options.cell_mm unless max_grid_dim forced more)
 };
 
@@ -93,8 +93,8 @@ struct Topology {
   int vertices = 0;    // referenced vertices
   int edges = 0;
   int faces = 0;
-  int euler = 0;       // V − E + F
-  int genus = 0;       // Σ over components of (2 − χ_c)/2; meaningful when watertight
+  int euler = 0;            // V − E + F
+  int genus = 0;            // Σ over components of (2 − χ_c)/2; meaningful when watertight
   bool watertight = false;  // every edge has exactly two faces with opposite orientations
   bool manifold = false;    // watertight and every vertex has one fan of triangles around it
   double volume_ml = 0.0;   // enclosed volume (divergence theorem), mm³/1000; > 0 when outward

@@ -5,8 +5,8 @@
 // execute functions must come from fft_alloc so their alignment matches the planning arrays.
 
 #include <array>
-#include <cstddef>
 #include <complex>
+#include <cstddef>
 
 namespace sonomesh::reconstruct::internal {
 

@@ -58,7 +58,8 @@ std::array<Face, 6> make_faces() {
     const int uv[4][2] = {{0, 0}, {1, 0}, {1, 1}, {0, 1}};
     for (int i = 0; i < 4; ++i)
       face.corners[i] = (face.side << face.axis) | (uv[i][0] << u) | (uv[i][1] << v);
-    for (int i = 0; i < 4; ++i) face.edges[i] = edge_between(face.corners[i], face.corners[(i + 1) % 4]);
+    for (int i = 0; i < 4; ++i)
+      face.edges[i] = edge_between(face.corners[i], face.corners[(i + 1) % 4]);
   }
   return faces;
 }
@@ -111,7 +112,8 @@ Case build_case(int mask, int decisions) {
     const auto a = edge_mid(p), b = edge_mid(q), x = corner_pos(ref_corner);
     const float d[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]};
     const float r[3] = {x[0] - a[0], x[1] - a[1], x[2] - a[2]};
-    const float cr[3] = {d[1] * r[2] - d[2] * r[1], d[2] * r[0] - d[0] * r[2], d[0] * r[1] - d[1] * r[0]};
+    const float cr[3] = {d[1] * r[2] - d[2] * r[1], d[2] * r[0] - d[0] * r[2],
+                         d[0] * r[1] - d[1] * r[0]};
     const float o = cr[f.axis] * (f.side ? 1.0f : -1.0f);
     const bool ref_inside = (mask >> ref_corner) & 1;
     if ((ref_inside && o > 0) || (!ref_inside && o < 0)) std::swap(p, q);
@@ -166,7 +168,7 @@ Case build_case(int mask, int decisions) {
 }
 
 struct Tables {
-  std::vector<Case> cases;                // index: mask | decisions << 8
+  std::vector<Case> cases;                    // index: mask | decisions << 8
   std::array<std::uint8_t, 256> ambiguous{};  // bit f: face f is ambiguous for this mask
 };
 
@@ -176,7 +178,8 @@ const Tables& tables() {
     t.cases.resize(1 << 14);
     for (int mask = 0; mask < 256; ++mask) {
       for (int f = 0; f < 6; ++f)
-        if (face_ambiguous(faces()[f], mask)) t.ambiguous[mask] |= static_cast<std::uint8_t>(1 << f);
+        if (face_ambiguous(faces()[f], mask))
+          t.ambiguous[mask] |= static_cast<std::uint8_t>(1 << f);
       for (int d = 0; d < 64; ++d) {
         if ((d & ~t.ambiguous[mask]) != 0) continue;  // only decisions for ambiguous faces matter
         t.cases[mask | (d << 8)] = build_case(mask, d);
@@ -291,7 +294,8 @@ Mesh marching_cubes(const volume::Volume& field, float iso) {
         const int s0 = state(j, k);
         if (s0 != 2 && s0 == state(j + 1, k) && s0 == state(j, k + 1) && s0 == state(j + 1, k + 1))
           continue;  // the four rows around this row of cells agree everywhere: no surface
-        // Corner c = cx + 2 cy + 4 cz: the four rows give bits 0, 2, 4, 6 at x and 1, 3, 5, 7 at x + 1.
+        // Corner c = cx + 2 cy + 4 cz: the four rows give bits 0, 2, 4, 6 at x and 1, 3, 5, 7 at x
+        // + 1.
         const std::uint8_t* r00 = &inside[j * sy + k * sz];
         const std::uint8_t* r10 = r00 + sy;
         const std::uint8_t* r01 = r00 + sz;
@@ -335,7 +339,8 @@ Mesh marching_cubes(const volume::Volume& field, float iso) {
             out.centres.push_back(c / float(cs.centre_loops[l].size()));
             vid[12 + l] = kCentreTag | static_cast<std::uint32_t>(out.centres.size() - 1);
           }
-          for (const auto& tri : cs.triangles) out.triangles.push_back({vid[tri[0]], vid[tri[1]], vid[tri[2]]});
+          for (const auto& tri : cs.triangles)
+            out.triangles.push_back({vid[tri[0]], vid[tri[1]], vid[tri[2]]});
         }
       }
   });

@@ -1,21 +1,22 @@
 // Mesh files: PLY (DESIGN.md fixes the output layout exactly), binary STL, OBJ, and a PLY reader.
 
+#include <Eigen/Geometry>
 #include <bit>
 #include <cstring>
 #include <fstream>
 #include <sstream>
 #include <stdexcept>
 
-#include <Eigen/Geometry>
-
 #include "reconstruct/reconstruct.h"
 
 namespace sonomesh::reconstruct {
 namespace {
 
-static_assert(std::endian::native == std::endian::little, "PLY/STL writers assume a little-endian host");
+static_assert(std::endian::native == std::endian::little,
+              "PLY/STL writers assume a little-endian host");
 
-MeshIoError io_error(MeshIoError::Code code, const std::filesystem::path& path, const std::string& what) {
+MeshIoError io_error(MeshIoError::Code code, const std::filesystem::path& path,
+                     const std::string& what) {
   return {code, path.string() + ": " + what};
 }
 
@@ -74,10 +75,18 @@ std::optional<Type> parse_type(const std::string& s) {
 
 int type_size(Type t) {
   switch (t) {
-    case Type::I8: case Type::U8: return 1;
-    case Type::I16: case Type::U16: return 2;
-    case Type::I32: case Type::U32: case Type::F32: return 4;
-    case Type::F64: return 8;
+    case Type::I8:
+    case Type::U8:
+      return 1;
+    case Type::I16:
+    case Type::U16:
+      return 2;
+    case Type::I32:
+    case Type::U32:
+    case Type::F32:
+      return 4;
+    case Type::F64:
+      return 8;
   }
   return 0;
 }
@@ -103,14 +112,48 @@ class Source {
     char b[8];
     if (!in_.read(b, type_size(t))) return false;
     switch (t) {
-      case Type::I8: *value = static_cast<std::int8_t>(b[0]); break;
-      case Type::U8: *value = static_cast<std::uint8_t>(b[0]); break;
-      case Type::I16: { std::int16_t x; std::memcpy(&x, b, 2); *value = x; break; }
-      case Type::U16: { std::uint16_t x; std::memcpy(&x, b, 2); *value = x; break; }
-      case Type::I32: { std::int32_t x; std::memcpy(&x, b, 4); *value = x; break; }
-      case Type::U32: { std::uint32_t x; std::memcpy(&x, b, 4); *value = x; break; }
-      case Type::F32: { float x; std::memcpy(&x, b, 4); *value = x; break; }
-      case Type::F64: { double x; std::memcpy(&x, b, 8); *value = x; break; }
+      case Type::I8:
+        *value = static_cast<std::int8_t>(b[0]);
+        break;
+      case Type::U8:
+        *value = static_cast<std::uint8_t>(b[0]);
+        break;
+      case Type::I16: {
+        std::int16_t x;
+        std::memcpy(&x, b, 2);
+        *value = x;
+        break;
+      }
+      case Type::U16: {
+        std::uint16_t x;
+        std::memcpy(&x, b, 2);
+        *value = x;
+        break;
+      }
+      case Type::I32: {
+        std::int32_t x;
+        std::memcpy(&x, b, 4);
+        *value = x;
+        break;
+      }
+      case Type::U32: {
+        std::uint32_t x;
+        std::memcpy(&x, b, 4);
+        *value = x;
+        break;
+      }
+      case Type::F32: {
+        float x;
+        std::memcpy(&x, b, 4);
+        *value = x;
+        break;
+      }
+      case Type::F64: {
+        double x;
+        std::memcpy(&x, b, 8);
+        *value = x;
+        break;
+      }
     }
     return true;
   }
@@ -159,7 +202,8 @@ std::optional<MeshIoError> write_obj(const Mesh& mesh, const std::filesystem::pa
   s.precision(9);
   s << "# sonomesh mesh, mm\n";
   for (const auto& v : mesh.vertices) s << "v " << v.x() << ' ' << v.y() << ' ' << v.z() << '\n';
-  for (const auto& t : mesh.triangles) s << "f " << t[0] + 1 << ' ' << t[1] + 1 << ' ' << t[2] + 1 << '\n';
+  for (const auto& t : mesh.triangles)
+    s << "f " << t[0] + 1 << ' ' << t[1] + 1 << ' ' << t[2] + 1 << '\n';
   out << s.str();
   return finish(out, path);
 }
@@ -169,7 +213,8 @@ std::optional<MeshIoError> write_mesh(const Mesh& mesh, const std::filesystem::p
   if (ext == ".ply" || ext == ".PLY") return write_ply(mesh, path);
   if (ext == ".stl" || ext == ".STL") return write_stl(mesh, path);
   if (ext == ".obj" || ext == ".OBJ") return write_obj(mesh, path);
-  return io_error(MeshIoError::Code::Unsupported, path, "unknown mesh extension (want .ply, .stl or .obj)");
+  return io_error(MeshIoError::Code::Unsupported, path,
+                  "unknown mesh extension (want .ply, .stl or .obj)");
 }
 
 MeshReadResult read_ply(const std::filesystem::path& path) {
@@ -183,11 +228,13 @@ MeshReadResult read_ply(const std::filesystem::path& path) {
   std::ifstream in(path, std::ios::binary);
   if (!in) return fail(MeshIoError::Code::OpenFailed, "cannot open");
   std::string line;
-  if (!std::getline(in, line) || line != "ply") return fail(MeshIoError::Code::BadHeader, "not a PLY file");
+  if (!std::getline(in, line) || line != "ply")
+    return fail(MeshIoError::Code::BadHeader, "not a PLY file");
   bool ascii = false, have_format = false;
   std::vector<Element> elements;
   for (;;) {
-    if (!std::getline(in, line)) return fail(MeshIoError::Code::Truncated, "header ends before end_header");
+    if (!std::getline(in, line))
+      return fail(MeshIoError::Code::Truncated, "header ends before end_header");
     if (!line.empty() && line.back() == '\r') line.pop_back();
     std::istringstream ls(line);
     std::string word;
@@ -197,7 +244,8 @@ MeshReadResult read_ply(const std::filesystem::path& path) {
     if (word == "format") {
       std::string fmt;
       ls >> fmt;
-      if (fmt == "ascii") ascii = true;
+      if (fmt == "ascii")
+        ascii = true;
       else if (fmt != "binary_little_endian")
         return fail(MeshIoError::Code::Unsupported, "format '" + fmt + "' not supported");
       have_format = true;
@@ -247,7 +295,8 @@ MeshReadResult read_ply(const std::filesystem::path& path) {
       if ((n == "vertex_indices" || n == "vertex_index") && e.properties[p].is_list) iidx = p;
     }
     if (is_vertex) {
-      if (ix < 0 || iy < 0 || iz < 0) return fail(MeshIoError::Code::BadHeader, "vertex element lacks x, y or z");
+      if (ix < 0 || iy < 0 || iz < 0)
+        return fail(MeshIoError::Code::BadHeader, "vertex element lacks x, y or z");
       r.mesh.vertices.resize(e.count);
       if (istop >= 0) r.stop.resize(e.count);
       have_vertices = true;
@@ -266,17 +315,21 @@ MeshReadResult read_ply(const std::filesystem::path& path) {
             return fail(MeshIoError::Code::Truncated, "truncated or bad list in element " + e.name);
           list.resize(static_cast<std::size_t>(value));
           for (auto& x : list)
-            if (!src.read(prop.type, &x)) return fail(MeshIoError::Code::Truncated, "truncated list in element " + e.name);
+            if (!src.read(prop.type, &x))
+              return fail(MeshIoError::Code::Truncated, "truncated list in element " + e.name);
           if (is_face && p == iidx) {
             for (double x : list)
               if (x < 0 || x >= double(r.mesh.vertices.size()))
-                return fail(MeshIoError::Code::BadIndex, "face " + std::to_string(n) + " indexes a missing vertex");
+                return fail(MeshIoError::Code::BadIndex,
+                            "face " + std::to_string(n) + " indexes a missing vertex");
             for (std::size_t k = 1; k + 1 < list.size(); ++k)  // polygons as fans
-              r.mesh.triangles.push_back({std::uint32_t(list[0]), std::uint32_t(list[k]), std::uint32_t(list[k + 1])});
+              r.mesh.triangles.push_back(
+                  {std::uint32_t(list[0]), std::uint32_t(list[k]), std::uint32_t(list[k + 1])});
           }
           continue;
         }
-        if (!src.read(prop.type, &value)) return fail(MeshIoError::Code::Truncated, "truncated element " + e.name);
+        if (!src.read(prop.type, &value))
+          return fail(MeshIoError::Code::Truncated, "truncated element " + e.name);
         if (is_vertex) {
           if (p == ix) r.mesh.vertices[n].x() = float(value);
           if (p == iy) r.mesh.vertices[n].y() = float(value);
@@ -286,7 +339,8 @@ MeshReadResult read_ply(const std::filesystem::path& path) {
       }
     }
   }
-  if (!have_vertices || !have_faces) return fail(MeshIoError::Code::BadHeader, "needs vertex and face elements");
+  if (!have_vertices || !have_faces)
+    return fail(MeshIoError::Code::BadHeader, "needs vertex and face elements");
   return r;
 }
 

@@ -1,9 +1,8 @@
 // Opening the balloon (method.md §4; paper §4, steps [1]-[3]) and plain vertex samples.
 
+#include <Eigen/Geometry>
 #include <stdexcept>
 #include <string>
-
-#include <Eigen/Geometry>
 
 #include "reconstruct/reconstruct.h"
 
@@ -14,7 +13,8 @@ namespace {
 // vertex's normal is the normalised sum of the unit normals of its kept triangles (eq. 2), so a
 // vertex at the rim of the opening gets its normal from the triangles that remain, as step [2]
 // asks; its weight is a third of their area.
-PointCloud samples_from(const Mesh& mesh, const std::vector<char>& keep, const std::vector<char>& drop_vertex) {
+PointCloud samples_from(const Mesh& mesh, const std::vector<char>& keep,
+                        const std::vector<char>& drop_vertex) {
   const std::size_t nv = mesh.vertices.size();
   std::vector<Vec3f> normal_sum(nv, Vec3f::Zero());
   std::vector<float> area(nv, 0.0f);
@@ -48,7 +48,8 @@ void check_mesh(const Mesh& mesh, const char* who) {
     for (auto v : t)
       if (v >= mesh.vertices.size())
         throw std::invalid_argument(std::string(who) + ": triangle index " + std::to_string(v) +
-                                    " out of range (" + std::to_string(mesh.vertices.size()) + " vertices)");
+                                    " out of range (" + std::to_string(mesh.vertices.size()) +
+                                    " vertices)");
 }
 
 }  // namespace
@@ -56,7 +57,8 @@ void check_mesh(const Mesh& mesh, const char* who) {
 PointCloud open_balloon(const Mesh& balloon, const std::vector<StopReason>& stop) {
   if (stop.size() != balloon.vertices.size())
     throw std::invalid_argument("open_balloon: stop.size() (" + std::to_string(stop.size()) +
-                                ") != balloon.vertices.size() (" + std::to_string(balloon.vertices.size()) + ")");
+                                ") != balloon.vertices.size() (" +
+                                std::to_string(balloon.vertices.size()) + ")");
   check_mesh(balloon, "open_balloon");
   // [1] Type-1 vertices and the triangles that touch them.
   std::vector<char> type1(balloon.vertices.size(), 0);

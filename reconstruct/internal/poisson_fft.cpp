@@ -74,8 +74,7 @@ Grid make_grid(const PointCloud& s, const PoissonOptions& o) {
     g.cell_mm *= 1.1f;  // too fine for max_grid_dim: coarsen until it fits
   }
   const Eigen::Vector3d centre = 0.5 * (lo + hi);
-  for (int a = 0; a < 3; ++a)
-    g.origin_mm[a] = float(centre[a] - 0.5 * (g.dims[a] - 1) * g.cell_mm);
+  for (int a = 0; a < 3; ++a) g.origin_mm[a] = float(centre[a] - 0.5 * (g.dims[a] - 1) * g.cell_mm);
   return g;
 }
 
@@ -93,7 +92,8 @@ inline Stencil stencil(const Grid& g, const Vec3f& p_mm) {
     i[a] = std::clamp(int(fl), 0, g.dims[a] - 2);
     f[a] = std::clamp(u[a] - float(i[a]), 0.0f, 1.0f);
   }
-  return {std::size_t(i[0]) + std::size_t(g.dims[0]) * (i[1] + std::size_t(g.dims[1]) * i[2]), f[0], f[1], f[2]};
+  return {std::size_t(i[0]) + std::size_t(g.dims[0]) * (i[1] + std::size_t(g.dims[1]) * i[2]), f[0],
+          f[1], f[2]};
 }
 
 void splat(const Grid& g, const PointCloud& s, int axis, float* field) {
@@ -141,7 +141,8 @@ IndicatorGrid poisson_indicator(const PointCloud& s, const PoissonOptions& o) {
   check(std::isfinite(o.cell_mm) && o.cell_mm > 0.0f, "cell_mm must be positive");
   check(o.padding_fraction >= 0.1f && o.padding_fraction <= 2.0f,
         "padding_fraction must be in [0.1, 2] (the FFT is periodic)");
-  check(o.smoothing_cells >= 0.0f && o.smoothing_cells <= 8.0f, "smoothing_cells must be in [0, 8]");
+  check(o.smoothing_cells >= 0.0f && o.smoothing_cells <= 8.0f,
+        "smoothing_cells must be in [0, 8]");
   check(o.max_grid_dim >= 16 && o.max_grid_dim <= 1024, "max_grid_dim must be in [16, 1024]");
   check(o.fft_threads >= 1 && o.fft_threads <= 64, "fft_threads must be in [1, 64]");
 

@@ -10,7 +10,8 @@ SurfaceResult reconstruct_surface(const PointCloud& samples, const Vec3f& seed_m
                                   const PoissonOptions& options) {
   using clock = std::chrono::steady_clock;
   auto ms = [](clock::duration d) { return std::chrono::duration<double, std::milli>(d).count(); };
-  if (!seed_mm.allFinite()) throw std::invalid_argument("reconstruct_surface: seed_mm is not finite");
+  if (!seed_mm.allFinite())
+    throw std::invalid_argument("reconstruct_surface: seed_mm is not finite");
   SurfaceResult r;
   const auto t0 = clock::now();
   IndicatorGrid grid = poisson_indicator(samples, options);

@@ -1,13 +1,12 @@
 // Mesh counts and checks (Euler characteristic, watertightness, vertex fans), components and
 // point-in-mesh tests.
 
+#include <Eigen/Geometry>
 #include <algorithm>
 #include <cmath>
 #include <numeric>
 #include <stdexcept>
 #include <string>
-
-#include <Eigen/Geometry>
 
 #include "reconstruct/reconstruct.h"
 
@@ -78,7 +77,8 @@ Topology analyze_topology(const Mesh& mesh) {
   const auto label = vertex_components(mesh, &n_comp);
   topo.components = n_comp;
   topo.faces = static_cast<int>(mesh.triangles.size());
-  topo.vertices = static_cast<int>(std::count_if(label.begin(), label.end(), [](int l) { return l >= 0; }));
+  topo.vertices =
+      static_cast<int>(std::count_if(label.begin(), label.end(), [](int l) { return l >= 0; }));
 
   // Directed half-edges (a, b) as 64-bit keys; an undirected edge is closed when it is exactly
   // {(a, b), (b, a)}.
@@ -94,7 +94,8 @@ Topology analyze_topology(const Mesh& mesh) {
   std::sort(half.begin(), half.end());
   std::sort(undirected.begin(), undirected.end());
   bool watertight = !mesh.triangles.empty();
-  if (std::adjacent_find(half.begin(), half.end()) != half.end()) watertight = false;  // same direction twice
+  if (std::adjacent_find(half.begin(), half.end()) != half.end())
+    watertight = false;  // same direction twice
   std::vector<int> edges_per_comp(n_comp, 0), verts_per_comp(n_comp, 0), faces_per_comp(n_comp, 0);
   for (std::size_t i = 0; i < undirected.size();) {
     std::size_t j = i;
@@ -175,7 +176,8 @@ std::vector<Mesh> connected_components(const Mesh& mesh) {
 bool encloses(const Mesh& mesh, const Vec3f& p_mm) {
   check_indices(mesh, "encloses");
   // A ray along an irrational direction practically never meets an edge or a vertex exactly.
-  const Eigen::Vector3d dir = Eigen::Vector3d(1.0, 0.000317 * std::sqrt(2.0), 0.000271 * std::sqrt(3.0)).normalized();
+  const Eigen::Vector3d dir =
+      Eigen::Vector3d(1.0, 0.000317 * std::sqrt(2.0), 0.000271 * std::sqrt(3.0)).normalized();
   const Eigen::Vector3d o = p_mm.cast<double>();
   int hits = 0;
   for (const auto& t : mesh.triangles) {

@@ -12,7 +12,8 @@ using test::kPi;
 TEST(MarchingCubes, SphereFieldGivesClosedOutwardGenusZeroSurface) {
   const float R = 15.0f;
   const Vec3f c(24.3f, 23.7f, 24.1f);
-  const auto f = test::field(48, 1.0f, Vec3f::Zero(), [&](const Vec3f& p) { return R - (p - c).norm(); });
+  const auto f =
+      test::field(48, 1.0f, Vec3f::Zero(), [&](const Vec3f& p) { return R - (p - c).norm(); });
   const Mesh m = marching_cubes(f, 0.0f);
   const Topology t = analyze_topology(m);
   EXPECT_TRUE(t.watertight);
@@ -68,7 +69,8 @@ TEST(MarchingCubes, EverySignPatternOfTwoNeighbouringCubesIsWatertight) {
   // decider goes both ways on ambiguous faces.
   std::mt19937 rng(7);
   std::uniform_real_distribution<float> mag(0.05f, 1.0f);
-  volume::Volume f(volume::Vec3i(5, 4, 4), Vec3f::Ones(), Vec3f::Zero(), volume::VoxelType::Float32);
+  volume::Volume f(volume::Vec3i(5, 4, 4), Vec3f::Ones(), Vec3f::Zero(),
+                   volume::VoxelType::Float32);
   int failures = 0;
   for (int pattern = 1; pattern < 4096; ++pattern)
     for (int draw = 0; draw < 2; ++draw) {
@@ -95,7 +97,8 @@ TEST(MarchingCubes, SurfaceTouchingTheGridBorderIsClosedThere) {
 }
 
 TEST(MarchingCubes, RejectsNonFloatVolumes) {
-  const volume::Volume v(volume::Vec3i(8, 8, 8), Vec3f::Ones(), Vec3f::Zero(), volume::VoxelType::UInt8);
+  const volume::Volume v(volume::Vec3i(8, 8, 8), Vec3f::Ones(), Vec3f::Zero(),
+                         volume::VoxelType::UInt8);
   EXPECT_THROW(marching_cubes(v, 0.5f), std::invalid_argument);
 }
 

@@ -11,7 +11,8 @@ namespace {
 namespace fs = std::filesystem;
 
 fs::path temp(const std::string& name) {
-  const fs::path dir = fs::temp_directory_path() / ("sonomesh_reconstruct_" + std::to_string(::getpid()));
+  const fs::path dir =
+      fs::temp_directory_path() / ("sonomesh_reconstruct_" + std::to_string(::getpid()));
   fs::create_directories(dir);
   return dir / name;
 }
@@ -27,7 +28,8 @@ TEST(MeshIo, PlyHeaderIsExactlyTheDesignedOne) {
   ASSERT_FALSE(write_ply(m, path).has_value());
   const std::string bytes = slurp(path);
   const std::string header =
-      "ply\nformat binary_little_endian 1.0\nelement vertex 102\nproperty float x\nproperty float y\n"
+      "ply\nformat binary_little_endian 1.0\nelement vertex 102\nproperty float x\nproperty float "
+      "y\n"
       "property float z\nelement face 200\nproperty list uchar int vertex_indices\nend_header\n";
   ASSERT_EQ(bytes.substr(0, header.size()), header);
   EXPECT_EQ(bytes.size(), header.size() + 102 * 12 + 200 * 13);
@@ -50,21 +52,24 @@ TEST(MeshIo, BalloonPlyCarriesStopReasons) {
   for (std::size_t i = 0; i < stop.size(); ++i) stop[i] = static_cast<StopReason>(i % 5);
   const auto path = temp("balloon.ply");
   ASSERT_FALSE(write_balloon_ply(m, stop, path).has_value());
-  EXPECT_NE(slurp(path).find("property float z\nproperty uchar stop\nelement face"), std::string::npos);
+  EXPECT_NE(slurp(path).find("property float z\nproperty uchar stop\nelement face"),
+            std::string::npos);
   const MeshReadResult r = read_ply(path);
   ASSERT_TRUE(r);
   ASSERT_EQ(r.stop.size(), stop.size());
-  for (std::size_t i = 0; i < stop.size(); ++i) EXPECT_EQ(r.stop[i], static_cast<std::uint8_t>(stop[i]));
+  for (std::size_t i = 0; i < stop.size(); ++i)
+    EXPECT_EQ(r.stop[i], static_cast<std::uint8_t>(stop[i]));
   EXPECT_EQ(r.mesh.vertices, m.vertices);
   EXPECT_THROW(write_balloon_ply(m, std::vector<StopReason>(2), path), std::invalid_argument);
 }
 
 TEST(MeshIo, ReadsAsciiPlyWithQuads) {
   const auto path = temp("ascii.ply");
-  std::ofstream(path) << "ply\nformat ascii 1.0\ncomment hand made\nelement vertex 4\n"
-                         "property double x\nproperty double y\nproperty double z\nproperty uchar red\n"
-                         "element face 1\nproperty list uchar uint vertex_indices\nend_header\n"
-                         "0 0 0 255\n1 0 0 0\n1 1 0 0\n0 1 0 0\n4 0 1 2 3\n";
+  std::ofstream(path)
+      << "ply\nformat ascii 1.0\ncomment hand made\nelement vertex 4\n"
+         "property double x\nproperty double y\nproperty double z\nproperty uchar red\n"
+         "element face 1\nproperty list uchar uint vertex_indices\nend_header\n"
+         "0 0 0 255\n1 0 0 0\n1 1 0 0\n0 1 0 0\n4 0 1 2 3\n";
   const MeshReadResult r = read_ply(path);
   ASSERT_TRUE(r) << r.error->message;
   EXPECT_EQ(r.mesh.vertices.size(), 4u);
@@ -84,9 +89,10 @@ TEST(MeshIo, BadPlyFilesGiveErrorsNotCrashes) {
   EXPECT_FALSE(read_ply(temp("missing.ply")));
   std::ofstream(temp("junk.ply")) << "not a ply\n";
   EXPECT_EQ(read_ply(temp("junk.ply")).error->code, MeshIoError::Code::BadHeader);
-  std::ofstream(temp("badindex.ply")) << "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\n"
-                                         "property float y\nproperty float z\nelement face 1\n"
-                                         "property list uchar int vertex_indices\nend_header\n0 0 0\n3 0 1 2\n";
+  std::ofstream(temp("badindex.ply"))
+      << "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\n"
+         "property float y\nproperty float z\nelement face 1\n"
+         "property list uchar int vertex_indices\nend_header\n0 0 0\n3 0 1 2\n";
   EXPECT_EQ(read_ply(temp("badindex.ply")).error->code, MeshIoError::Code::BadIndex);
 }
 

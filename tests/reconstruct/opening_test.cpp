@@ -6,12 +6,17 @@ namespace sonomesh::reconstruct {
 namespace {
 
 Vec3f unit_normal(const Mesh& m, const std::array<std::uint32_t, 3>& t) {
-  return (m.vertices[t[1]] - m.vertices[t[0]]).cross(m.vertices[t[2]] - m.vertices[t[0]]).normalized();
+  return (m.vertices[t[1]] - m.vertices[t[0]])
+      .cross(m.vertices[t[2]] - m.vertices[t[0]])
+      .normalized();
 }
 float area(const Mesh& m, const std::array<std::uint32_t, 3>& t) {
-  return 0.5f * (m.vertices[t[1]] - m.vertices[t[0]]).cross(m.vertices[t[2]] - m.vertices[t[0]]).norm();
+  return 0.5f *
+         (m.vertices[t[1]] - m.vertices[t[0]]).cross(m.vertices[t[2]] - m.vertices[t[0]]).norm();
 }
-bool has(const std::array<std::uint32_t, 3>& t, std::uint32_t v) { return t[0] == v || t[1] == v || t[2] == v; }
+bool has(const std::array<std::uint32_t, 3>& t, std::uint32_t v) {
+  return t[0] == v || t[1] == v || t[2] == v;
+}
 
 TEST(OrientedSamples, SphereNormalsPointOutwardWithAreaWeights) {
   const Vec3f c(1, 2, 3);
@@ -31,9 +36,9 @@ TEST(OrientedSamples, SphereNormalsPointOutwardWithAreaWeights) {
 TEST(OpenBalloon, RemovesTypeOneVerticesAndTheirTriangles) {
   const Mesh m = test::uv_sphere(Vec3f::Zero(), 5.0f, 10, 11);
   std::vector<StopReason> stop(m.vertices.size(), StopReason::Boundary);
-  stop[0] = StopReason::SelfIntersection;    // north pole
-  stop[5] = StopReason::SelfIntersection;    // one vertex of the first ring
-  stop[40] = StopReason::Curvature;          // other reasons stay
+  stop[0] = StopReason::SelfIntersection;  // north pole
+  stop[5] = StopReason::SelfIntersection;  // one vertex of the first ring
+  stop[40] = StopReason::Curvature;        // other reasons stay
   const PointCloud s = open_balloon(m, stop);
   EXPECT_EQ(s.points.size(), m.vertices.size() - 2);
   for (const auto& p : s.points) {
@@ -76,7 +81,8 @@ TEST(OpenBalloon, OpenedSphereReconstructsToAClosedSphere) {
   std::vector<StopReason> stop(m.vertices.size(), StopReason::Boundary);
   for (std::size_t v = 0; v < m.vertices.size(); ++v)
     if (m.vertices[v].z() > 6.5f) stop[v] = StopReason::SelfIntersection;
-  const SurfaceResult r = reconstruct_surface(open_balloon(m, stop), Vec3f::Zero(), {.cell_mm = 0.5f});
+  const SurfaceResult r =
+      reconstruct_surface(open_balloon(m, stop), Vec3f::Zero(), {.cell_mm = 0.5f});
   EXPECT_TRUE(r.seed_enclosed);
   EXPECT_TRUE(r.topology.watertight);
   EXPECT_EQ(r.topology.genus, 0);

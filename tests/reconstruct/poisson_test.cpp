@@ -31,7 +31,8 @@ TEST(Poisson, SphereWithOutwardNormalsIsInsideAtTheCentre) {
 TEST(Poisson, SphereIsReconstructedWithinAQuarterCell) {
   const Vec3f c(3.2f, -1.7f, 0.9f);
   const float R = 10.0f, cell = 0.5f;
-  const SurfaceResult r = reconstruct_surface(test::sphere_samples(c, R, 5000), c, {.cell_mm = cell});
+  const SurfaceResult r =
+      reconstruct_surface(test::sphere_samples(c, R, 5000), c, {.cell_mm = cell});
   EXPECT_TRUE(r.seed_enclosed);
   EXPECT_EQ(r.components_before_selection, 1);
   EXPECT_TRUE(r.topology.watertight);
@@ -121,7 +122,8 @@ TEST(Poisson, SphereWithACapRemovedIsClosedAgain) {
 TEST(Poisson, FarFromTheOriginNothingWrapsAround) {
   const Vec3f c(1000.0f, -500.0f, 250.0f);
   const float R = 6.0f, cell = 0.4f;
-  const SurfaceResult r = reconstruct_surface(test::sphere_samples(c, R, 3000), c, {.cell_mm = cell});
+  const SurfaceResult r =
+      reconstruct_surface(test::sphere_samples(c, R, 3000), c, {.cell_mm = cell});
   EXPECT_EQ(r.components_before_selection, 1);  // no ghost surface from the periodic images
   EXPECT_EQ(r.topology.genus, 0);
   EXPECT_LE(mean_sphere_error(r.mesh, c, R), 0.25 * cell);
@@ -142,8 +144,9 @@ TEST(Poisson, FarFromTheOriginNothingWrapsAround) {
 TEST(Poisson, CentralDifferenceModeIsAlsoWithinAQuarterCell) {
   const Vec3f c(0.3f, 0.2f, -0.1f);
   const float R = 10.0f, cell = 0.5f;
-  const SurfaceResult r = reconstruct_surface(test::sphere_samples(c, R, 5000), c,
-                                              {.cell_mm = cell, .divergence = DivergenceMode::CentralDifference});
+  const SurfaceResult r =
+      reconstruct_surface(test::sphere_samples(c, R, 5000), c,
+                          {.cell_mm = cell, .divergence = DivergenceMode::CentralDifference});
   EXPECT_TRUE(r.topology.watertight);
   EXPECT_EQ(r.topology.genus, 0);
   EXPECT_LE(mean_sphere_error(r.mesh, c, R), 0.25 * cell);
@@ -151,7 +154,8 @@ TEST(Poisson, CentralDifferenceModeIsAlsoWithinAQuarterCell) {
 
 TEST(Poisson, GridDimsAreFftFriendlyAndPadded) {
   const Vec3f c(0, 0, 0);
-  const IndicatorGrid g = poisson_indicator(test::sphere_samples(c, 7.0f, 1000), {.cell_mm = 0.45f});
+  const IndicatorGrid g =
+      poisson_indicator(test::sphere_samples(c, 7.0f, 1000), {.cell_mm = 0.45f});
   for (int a = 0; a < 3; ++a) {
     int n = g.chi.dims()[a];
     for (int p : {2, 3, 5})

@@ -2,9 +2,8 @@
 // Analytic test shapes: oriented, area-weighted samples with exact normals, closed meshes, and
 // signed-distance fields (positive inside, so marching_cubes at iso 0 traces the surface).
 
-#include <cmath>
-
 #include <Eigen/Geometry>
+#include <cmath>
 
 #include "reconstruct/reconstruct.h"
 
@@ -56,19 +55,23 @@ inline Mesh uv_sphere(const Vec3f& centre, float radius, int segments, int bands
     const float th = kPi * b / bands;
     for (int s = 0; s < segments; ++s) {
       const float ph = 2 * kPi * s / segments;
-      m.vertices.push_back(centre + radius * Vec3f(std::sin(th) * std::cos(ph), std::sin(th) * std::sin(ph), std::cos(th)));
+      m.vertices.push_back(centre + radius * Vec3f(std::sin(th) * std::cos(ph),
+                                                   std::sin(th) * std::sin(ph), std::cos(th)));
     }
   }
   m.vertices.push_back(centre + Vec3f(0, 0, -radius));
   const auto south = static_cast<std::uint32_t>(m.vertices.size() - 1);
-  auto ring = [&](int b, int s) { return static_cast<std::uint32_t>(1 + (b - 1) * segments + (s % segments)); };
+  auto ring = [&](int b, int s) {
+    return static_cast<std::uint32_t>(1 + (b - 1) * segments + (s % segments));
+  };
   for (int s = 0; s < segments; ++s) m.triangles.push_back({0, ring(1, s), ring(1, s + 1)});
   for (int b = 1; b + 1 < bands; ++b)
     for (int s = 0; s < segments; ++s) {
       m.triangles.push_back({ring(b, s), ring(b + 1, s), ring(b + 1, s + 1)});
       m.triangles.push_back({ring(b, s), ring(b + 1, s + 1), ring(b, s + 1)});
     }
-  for (int s = 0; s < segments; ++s) m.triangles.push_back({south, ring(bands - 1, s + 1), ring(bands - 1, s)});
+  for (int s = 0; s < segments; ++s)
+    m.triangles.push_back({south, ring(bands - 1, s + 1), ring(bands - 1, s)});
   return m;
 }
 

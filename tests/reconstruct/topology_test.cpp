@@ -31,7 +31,8 @@ TEST(Topology, TorusGridHasGenusOne) {
   for (int i = 0; i < nu; ++i)
     for (int j = 0; j < nv; ++j) {
       const float u = 2 * test::kPi * i / nu, v = 2 * test::kPi * j / nv;
-      m.vertices.emplace_back((10 + 3 * std::cos(v)) * std::cos(u), (10 + 3 * std::cos(v)) * std::sin(u), 3 * std::sin(v));
+      m.vertices.emplace_back((10 + 3 * std::cos(v)) * std::cos(u),
+                              (10 + 3 * std::cos(v)) * std::sin(u), 3 * std::sin(v));
     }
   auto id = [&](int i, int j) { return std::uint32_t((i % nu) * nv + (j % nv)); };
   for (int i = 0; i < nu; ++i)
@@ -60,7 +61,8 @@ TEST(Topology, HoleAndFlippedTriangleBreakWatertightness) {
 
 TEST(Topology, TwoSpheresSharingAVertexAreNotManifold) {
   Mesh a = test::uv_sphere(Vec3f::Zero(), 5.0f, 10, 11);
-  const Mesh b = test::uv_sphere(Vec3f(0, 0, -10), 5.0f, 10, 11);  // b's north pole = a's south pole
+  const Mesh b =
+      test::uv_sphere(Vec3f(0, 0, -10), 5.0f, 10, 11);  // b's north pole = a's south pole
   const auto offset = static_cast<std::uint32_t>(a.vertices.size());
   const auto a_south = offset - 1;
   a.vertices.insert(a.vertices.end(), b.vertices.begin(), b.vertices.end());
@@ -92,7 +94,8 @@ TEST(RasterizeLabels, SphereVoxelCountMatchesAnalyticVolume) {
   const float R = 10.0f;
   const Vec3f c(12.1f, 11.9f, 12.05f);
   const Mesh m = test::uv_sphere(c, R, 96, 48);
-  const volume::Volume like(volume::Vec3i(48, 48, 50), Vec3f(0.5f, 0.5f, 0.5f), Vec3f::Zero(), volume::VoxelType::UInt16);
+  const volume::Volume like(volume::Vec3i(48, 48, 50), Vec3f(0.5f, 0.5f, 0.5f), Vec3f::Zero(),
+                            volume::VoxelType::UInt16);
   const volume::Volume labels = rasterize_labels(m, like);
   ASSERT_EQ(labels.type(), volume::VoxelType::UInt8);
   EXPECT_EQ(labels.dims(), like.dims());
