@@ -2,6 +2,7 @@
 
 #include <chrono>
 
+#include "reconstruct/internal/components.h"
 #include "reconstruct/reconstruct.h"
 
 namespace sonomesh::reconstruct {
@@ -17,8 +18,8 @@ SurfaceResult reconstruct_surface(const PointCloud& samples, const Vec3f& seed_m
   IndicatorGrid grid = poisson_indicator(samples, options);
   const auto t1 = clock::now();
   const Mesh all = marching_cubes(grid.chi, grid.iso);
-  r.components_before_selection = static_cast<int>(connected_components(all).size());
-  r.mesh = component_enclosing(all, seed_mm, &r.seed_enclosed);
+  r.mesh =
+      internal::select_component(all, seed_mm, &r.seed_enclosed, &r.components_before_selection);
   const auto t2 = clock::now();
   r.topology = analyze_topology(r.mesh);
   r.iso = grid.iso;

@@ -8,6 +8,7 @@
 #include <stdexcept>
 #include <string>
 
+#include "reconstruct/internal/components.h"
 #include "reconstruct/reconstruct.h"
 
 namespace sonomesh::reconstruct {
@@ -199,8 +200,11 @@ bool encloses(const Mesh& mesh, const Vec3f& p_mm) {
   return hits % 2 == 1;
 }
 
-Mesh component_enclosing(const Mesh& mesh, const Vec3f& seed_mm, bool* seed_enclosed) {
+namespace internal {
+Mesh select_component(const Mesh& mesh, const Vec3f& seed_mm, bool* seed_enclosed,
+                      int* component_count) {
   auto comps = connected_components(mesh);
+  if (component_count) *component_count = static_cast<int>(comps.size());
   int best = -1;
   double best_volume = 0.0;
   for (int c = 0; c < static_cast<int>(comps.size()); ++c) {
@@ -218,6 +222,11 @@ Mesh component_enclosing(const Mesh& mesh, const Vec3f& seed_mm, bool* seed_encl
   }
   if (best < 0) return {};
   return std::move(comps[best]);
+}
+}  // namespace internal
+
+Mesh component_enclosing(const Mesh& mesh, const Vec3f& seed_mm, bool* seed_enclosed) {
+  return internal::select_component(mesh, seed_mm, seed_enclosed, nullptr);
 }
 
 }  // namespace sonomesh::reconstruct

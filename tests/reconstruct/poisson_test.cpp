@@ -1,5 +1,7 @@
 #include <gtest/gtest.h>
+#include <unistd.h>
 
+#include <filesystem>
 #include <thread>
 
 #include "reconstruct/internal/fft_plans.h"
@@ -213,6 +215,35 @@ TEST(Poisson, RejectsBadInput) {
   PointCloud nan = test::sphere_samples(Vec3f::Zero(), 5.0f, 100);
   nan.points[3].x() = std::nanf("");
   EXPECT_THROW(poisson_indicator(nan), std::invalid_argument);
+}
+
+}  // namespace
+}  // namespace sonomesh::reconstruct
+
+namespace sonomesh::reconstruct {
+namespace {
+
+TEST(Outputs, LabelsAndIndicatorOfAReconstructedSphere) {
+  // method.md §6: a label volume on the input grid and the indicator as an OpenVDB grid.
+  const Vec3f c(12.0f, 12.5f, 11.8f);
+  const float R = 8.0f;
+  const SurfaceResult r =
+      reconstruct_surface(test::sphere_samples(c, R, 4000), c, {.cell_mm = 0.5f});
+  const volume::Volume input(volume::Vec3i(48, 50, 48), Vec3f::Constant(0.5f), Vec3f::Zero(),
+                             volume::VoxelType::UInt8);
+  const volume::Volume labels = rasterize_labels(r.mesh, input);
+  std::size_t count = 0;
+  for (auto v : labels.u8()) count += v;
+  const double analytic = 4.0 / 3.0 * kPi * R * R * R / 0.125;
+  EXPECT_NEAR(double(count), analytic, 0.02 * analytic);
+  EXPECT_EQ(labels.u8()[labels.linear_index(24, 25, 24)], 1);
+  EXPECT_EQ(labels.u8()[labels.linear_index(2, 2, 2)], 0);
+  const auto path = std::filesystem::temp_directory_path() /
+                    ("sonomesh_reconstruct_chi_" + std::to_string(::getpid()) + ".vdb");
+  const auto error = volume::write_vdb(r.indicator, path, "chi");
+  EXPECT_FALSE(error.has_value()) << error->message;
+  EXPECT_GT(std::filesystem::file_size(path), 1000u);
+  std::filesystem::remove(path);
 }
 
 }  // namespace
