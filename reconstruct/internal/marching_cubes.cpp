@@ -220,8 +220,16 @@ Mesh marching_cubes(const volume::Volume& field, float iso) {
     for (int k = k0; k < k1; ++k)
       for (int j = 0; j < ny; ++j) {
         std::uint8_t* row = &inside[j * sy + k * sz];
+        const float* frow = f + j * sy + k * sz;
         int count = 0;
-        for (int i = 0; i < nx; ++i) count += row[i] = value(i, j, k) > 0.0f;
+        if (j == 0 || k == 0 || j == ny - 1 || k == nz - 1) {
+          std::fill(row, row + nx, std::uint8_t{0});  // border rows are outside
+        } else {
+          // Plain compare loop (vectorises); the two border samples of the row are outside.
+          for (int i = 1; i + 1 < nx; ++i) row[i] = frow[i] > iso;
+          row[0] = row[nx - 1] = 0;
+          for (int i = 1; i + 1 < nx; ++i) count += row[i];
+        }
         row_state[j + std::size_t(ny) * k] = count == 0 ? 0 : (count == nx ? 1 : 2);
       }
   });
