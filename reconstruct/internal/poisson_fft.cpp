@@ -10,6 +10,7 @@
 #include <algorithm>
 #include <cmath>
 #include <complex>
+#include <numbers>
 #include <stdexcept>
 #include <string>
 
@@ -39,7 +40,7 @@ void check(bool ok, const std::string& what) {
 // Signed frequency (radians per mm) of FFT bin m on an axis of n bins.
 inline float wave_number(int m, int n, float cell_mm) {
   const int s = m <= n / 2 ? m : m - n;
-  return 2.0f * float(M_PI) * float(s) / (float(n) * cell_mm);
+  return 2.0f * std::numbers::pi_v<float> * float(s) / (float(n) * cell_mm);
 }
 
 struct Grid {
