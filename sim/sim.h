@@ -44,11 +44,23 @@ struct Phantom {
 /// Names accepted in PhantomSpec::phantom.
 const std::vector<std::string>& phantom_names();
 
-/// Builds a phantom. Deterministic in the spec.
-/// @throws std::invalid_argument naming the field for an unknown phantom or a size below 16.
+/// Builds a phantom. Deterministic in the spec: the same spec gives the same bytes.
+///
+/// Grid: size_vox^3 voxels, origin 0 (z = 0 is the transducer face, the beam runs along +z).
+/// Shapes are sized relative to the volume, centred, and keep >= 3 voxels from the border at any
+/// time_s; thin parts (torus tube, needle tunnel) are resolved so the truth has exactly the stated
+/// genus for size_vox >= 48 (tested 48..256, any axis). Image: tissue ~120 grey levels at mid depth,
+/// target (1 - contrast) times that, Rayleigh speckle, depth attenuation, and for cyst-needle a
+/// bright needle with an acoustic shadow below it. time_s: breathing with a 4 s period (a shift of
+/// ~0.08 of the half extent, +-3 % scale), the speckle stays put. The first call for a new
+/// (seed, size) builds the speckle field; later calls reuse it (one field is cached).
+/// seed_index is the deepest target voxel (largest distance to the boundary, so away from the needle).
+/// @throws std::invalid_argument naming the field for an unknown phantom, a size outside 16..512,
+/// non-positive spacing, contrast/speckle outside [0, 1], or a zero axis.
 Phantom make_phantom(const PhantomSpec& spec);
 
-/// The phantom's image as a probe record (sequence and timestamp as given).
+/// The phantom's image as a probe record (sequence and timestamp as given). UInt8 and UInt16
+/// volumes only. @throws std::invalid_argument for a Float32 volume.
 acquire::RawVolume to_raw(const volume::Volume& image, std::uint64_t sequence,
                           std::uint64_t timestamp_ns);
 
