@@ -138,7 +138,7 @@ Phantom make_phantom(const PhantomSpec& spec) {
           }
           const float grain = speckle ? (1.0f - speckle_strength + speckle_strength * (*speckle)[idx]) : 1.0f;
           const float v = att[k] * echo * grain * shadow;
-          img[idx] = static_cast<std::uint8_t>(std::clamp(std::lround(v), 0L, 255L));
+          img[idx] = static_cast<std::uint8_t>(std::min(v + 0.5f, 255.0f));  // v >= 0: rounds
         }
       }
     }
