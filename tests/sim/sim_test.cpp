@@ -50,9 +50,9 @@ void PrintTo(const TopologyCase& c, std::ostream* os) {
   *os << c.phantom << " size " << c.size << " axis " << c.axis.transpose() << " t " << c.time_s;
 }
 
-class TruthTopology : public ::testing::TestWithParam<TopologyCase> {};
+class SimTruthTopology : public ::testing::TestWithParam<TopologyCase> {};
 
-TEST_P(TruthTopology, HasTheStatedGenus) {
+TEST_P(SimTruthTopology, HasTheStatedGenus) {
   const auto& c = GetParam();
   PhantomSpec spec = spec_for(c.phantom, c.size);
   spec.axis = c.axis;
@@ -66,7 +66,7 @@ TEST_P(TruthTopology, HasTheStatedGenus) {
 }
 
 INSTANTIATE_TEST_SUITE_P(
-    Phantoms, TruthTopology,
+    Phantoms, SimTruthTopology,
     ::testing::Values(TopologyCase{"sphere", 48, Vec3f::UnitZ(), 0.0f},
                       TopologyCase{"ellipsoid", 64, Vec3f(1, 1, 0), 0.0f},
                       TopologyCase{"torus", 48, Vec3f::UnitZ(), 0.0f},
@@ -85,7 +85,7 @@ INSTANTIATE_TEST_SUITE_P(
       return name;
     });
 
-TEST(TruthTopology, GenusFieldMatchesNames) {
+TEST(SimTopology, GenusFieldMatchesNames) {
   EXPECT_EQ(phantom_names().size(), 5u);
   const std::pair<const char*, int> expected[] = {
       {"sphere", 0}, {"ellipsoid", 0}, {"torus", 1}, {"cyst-needle", 1}, {"double-torus", 2}};
@@ -96,7 +96,7 @@ TEST(TruthTopology, GenusFieldMatchesNames) {
   }
 }
 
-TEST(TruthTopology, EulerCharacteristicOfKnownSolids) {
+TEST(SimTopology, EulerCharacteristicOfKnownSolids) {
   // The checker itself: a solid block (chi 1) and a block with a square tunnel (chi 0).
   volume::Volume v(Vec3i(8, 8, 8), Vec3f::Ones(), Vec3f::Zero(), volume::VoxelType::UInt8);
   for (int k = 2; k < 6; ++k)
@@ -114,7 +114,7 @@ TEST(TruthTopology, EulerCharacteristicOfKnownSolids) {
 
 // --- Seed point ---------------------------------------------------------------------------------
 
-TEST(Seed, IsDeepInsideTheTarget) {
+TEST(SimSeed, IsDeepInsideTheTarget) {
   for (const auto& name : phantom_names()) {
     PhantomSpec s = spec_for(name, 64);
     s.speckle = 0.0f;
@@ -134,7 +134,7 @@ TEST(Seed, IsDeepInsideTheTarget) {
   }
 }
 
-TEST(Seed, CystNeedleSeedIsAwayFromTheNeedle) {
+TEST(SimSeed, CystNeedleSeedIsAwayFromTheNeedle) {
   const PhantomSpec s = spec_for("cyst-needle", 64);
   const Phantom p = make_phantom(s);
   const internal::Shape shape(s, p.image.origin_mm());
@@ -145,7 +145,7 @@ TEST(Seed, CystNeedleSeedIsAwayFromTheNeedle) {
 
 // --- Determinism ---------------------------------------------------------------------------------
 
-TEST(Determinism, SameSeedSameBytesOtherSeedOtherBytes) {
+TEST(SimDeterminism, SameSeedSameBytesOtherSeedOtherBytes) {
   const Phantom a = make_phantom(spec_for("cyst-needle", 48, 7));
   const Phantom b = make_phantom(spec_for("cyst-needle", 48, 8));
   const Phantom c = make_phantom(spec_for("cyst-needle", 48, 7));  // after the cache moved on
@@ -156,7 +156,7 @@ TEST(Determinism, SameSeedSameBytesOtherSeedOtherBytes) {
   EXPECT_EQ(a.truth.u8(), b.truth.u8());  // the seed changes speckle, not geometry
 }
 
-TEST(Speckle, GaussianGeneratorIsStandardNormal) {
+TEST(SimSpeckle, GaussianGeneratorIsStandardNormal) {
   internal::GaussianPairs g(99);
   double sum = 0, sum2 = 0, cross = 0;
   const int n = 200000;
@@ -172,7 +172,7 @@ TEST(Speckle, GaussianGeneratorIsStandardNormal) {
   EXPECT_NEAR(cross / n, 0.0, 0.01);
 }
 
-TEST(Speckle, FieldIsUnitMeanRayleighAndLongerLaterally) {
+TEST(SimSpeckle, FieldIsUnitMeanRayleighAndLongerLaterally) {
   const Vec3i dims(48, 48, 48);
   const auto field = internal::speckle_field(11, dims);
   ASSERT_EQ(field->size(), 48u * 48u * 48u);
@@ -216,7 +216,7 @@ Regions regions(const PhantomSpec& spec, const Phantom& p) {
   return r;
 }
 
-TEST(ImageModel, TargetIsDarkerThanTissueByTheContrast) {
+TEST(SimImageModel, TargetIsDarkerThanTissueByTheContrast) {
   for (float contrast : {0.7f, 0.4f}) {
     PhantomSpec s = spec_for("sphere", 64);
     s.contrast = contrast;
@@ -255,7 +255,7 @@ std::vector<float> smooth(const volume::Volume& v, float sigma) {
   return a;
 }
 
-TEST(ImageModel, BoundaryIsClearAfterOneVoxelSmoothing) {
+TEST(SimImageModel, BoundaryIsClearAfterOneVoxelSmoothing) {
   const PhantomSpec s = spec_for("torus", 64);
   const Phantom p = make_phantom(s);
   const std::vector<float> sm = smooth(p.image, 1.0f);
@@ -285,7 +285,7 @@ TEST(ImageModel, BoundaryIsClearAfterOneVoxelSmoothing) {
   EXPECT_LT(static_cast<double>(wrong) / total, 0.02) << wrong << " of " << total;
 }
 
-TEST(ImageModel, AttenuationDarkensWithDepth) {
+TEST(SimImageModel, AttenuationDarkensWithDepth) {
   PhantomSpec s = spec_for("sphere", 64);
   s.attenuation_db_per_cm = 4.0f;  // 3.2 cm deep: 12.8 dB round trip, a factor ~4.4 in amplitude
   const Phantom p = make_phantom(s);
@@ -303,7 +303,7 @@ TEST(ImageModel, AttenuationDarkensWithDepth) {
   EXPECT_LT(top / bottom, 6.0);
 }
 
-TEST(ImageModel, NeedleIsBrightAndCastsAShadow) {
+TEST(SimImageModel, NeedleIsBrightAndCastsAShadow) {
   const PhantomSpec s = spec_for("cyst-needle", 64);
   const Phantom p = make_phantom(s);
   const internal::Shape shape(s, p.image.origin_mm());
@@ -347,7 +347,7 @@ TEST(ImageModel, NeedleIsBrightAndCastsAShadow) {
   EXPECT_LT(below / n, 0.5 * beside / n) << "below " << below / n << " beside " << beside / n;
 }
 
-TEST(ImageModel, SpeckleZeroGivesAFlatTissue) {
+TEST(SimImageModel, SpeckleZeroGivesAFlatTissue) {
   PhantomSpec s = spec_for("sphere", 48);
   s.speckle = 0.0f;
   s.attenuation_db_per_cm = 0.0f;
@@ -370,7 +370,7 @@ Vec3f centroid(const volume::Volume& truth) {
   return (sum / n).cast<float>();
 }
 
-TEST(Breathing, TimeMovesTheTargetAndAPeriodBringsItBack) {
+TEST(SimBreathing, TimeMovesTheTargetAndAPeriodBringsItBack) {
   PhantomSpec s = spec_for("ellipsoid", 64);
   s.speckle = 0.0f;
   const Phantom rest = make_phantom(s);
@@ -386,7 +386,7 @@ TEST(Breathing, TimeMovesTheTargetAndAPeriodBringsItBack) {
                                                          moved.seed_index.z())]);
 }
 
-TEST(Breathing, EveryPhantomStaysClearOfTheBorderAtItsExtremes) {
+TEST(SimBreathing, EveryPhantomStaysClearOfTheBorderAtItsExtremes) {
   for (const auto& name : phantom_names())
     for (float t : {1.0f, 3.0f})
       for (const Vec3f& axis : {Vec3f(0, 0, 1), Vec3f(1, 1, 1)}) {
@@ -409,7 +409,7 @@ TEST(Breathing, EveryPhantomStaysClearOfTheBorderAtItsExtremes) {
       }
 }
 
-TEST(TruthTopology, AnisotropicSpacingKeepsTheGenus) {
+TEST(SimTopology, AnisotropicSpacingKeepsTheGenus) {
   for (const std::string name : {"torus", "cyst-needle", "double-torus"}) {
     PhantomSpec s = spec_for(name, 64);
     s.spacing_mm = Vec3f(0.4f, 0.4f, 0.6f);
@@ -424,7 +424,7 @@ TEST(TruthTopology, AnisotropicSpacingKeepsTheGenus) {
 
 // --- Errors and probe records --------------------------------------------------------------------
 
-TEST(Errors, BadSpecsThrowNamingTheField) {
+TEST(SimErrors, BadSpecsThrowNamingTheField) {
   auto message = [](const PhantomSpec& s) {
     try {
       make_phantom(s);
@@ -443,7 +443,7 @@ TEST(Errors, BadSpecsThrowNamingTheField) {
   EXPECT_NE(message(s).find("contrast"), std::string::npos);
 }
 
-TEST(ToRaw, CarriesGridAndBytes) {
+TEST(SimToRaw, CarriesGridAndBytes) {
   const Phantom p = make_phantom(spec_for("sphere", 32));
   const acquire::RawVolume raw = to_raw(p.image, 42, 1234);
   EXPECT_EQ(raw.sequence, 42u);
