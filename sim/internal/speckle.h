@@ -10,8 +10,8 @@
 
 namespace sonomesh::sim::internal {
 
-/// Standard normal pairs from SplitMix64 bits (Box-Muller, fully specified here), so the bytes do not depend on the
-/// standard library's distribution implementation.
+/// Standard normal pairs from SplitMix64 bits (Box-Muller, fully specified here), so the bytes do
+/// not depend on the standard library's distribution implementation.
 class GaussianPairs {
  public:
   explicit GaussianPairs(std::uint64_t seed);
