@@ -1,0 +1,512 @@
+// The balloon evolution of method.md §1-3 (paper §2-3).
+//
+// Between two remeshing passes the mesh's connectivity is fixed, so the per-iteration loop runs on
+// flat arrays (positions, state, one-ring in CSR form, face normals) extracted from the OpenMesh
+// mesh; positions and state go back into OpenMesh for each remeshing pass. That keeps the hot
+// loop free of handle indirections and lets it run in parallel (TBB parallel_for over vertices).
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+#include <tbb/task_arena.h>
+
+#include <Eigen/Geometry>
+#include <algorithm>
+#include <limits>
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <cstdint>
+#include <stdexcept>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "segment/internal/balloon_mesh.h"
+#include "segment/internal/image_sampler.h"
+#include "segment/segment.h"
+
+namespace sonomesh::segment {
+namespace {
+
+using internal::BalloonMesh;
+using internal::ImageSampler;
+using internal::TriMesh;
+using volume::Vec3i;
+
+// ---------------------------------------------------------------------------------------------
+// The occupancy A_t with, per voxel, the normal of the front that first swept it.
+//
+// "Already inside before P's own front got there" is decided by the direction of the front that
+// marked the voxel, not by its age: where two fronts meet head-on (the two ends of the tube of a
+// torus, the sheets closing behind a needle) both sides marked their voxels in the last
+// iteration or two, so an age test cannot tell them from P's own front, while their normals are
+// opposite. P's own front marked the voxels around P with normals close to P's.
+//
+// Dense, one uint32 per voxel (int8 normal x, y, z and a marked byte), written with atomic
+// compare-and-swap so marking runs in parallel; first marker wins. See the report in
+// bench/balloon_bench.cpp for why this is not a volume::OccupancyGrid (bool only, not
+// thread-safe, and slower per access).
+class FrontMarks {
+ public:
+  FrontMarks(const volume::Volume& grid)
+      : dims_(grid.dims()),
+        origin_mm_(grid.origin_mm()),
+        inv_spacing_(grid.spacing_mm().cwiseInverse()),
+        cells_(grid.voxel_count()) {}
+
+  // Voxel containing p (voxel centres at integer indices); -1 outside.
+  std::int64_t index(const Vec3f& p_mm) const {
+    const Vec3f u = (p_mm - origin_mm_).cwiseProduct(inv_spacing_);
+    const int i = static_cast<int>(std::lround(u.x()));
+    const int j = static_cast<int>(std::lround(u.y()));
+    const int k = static_cast<int>(std::lround(u.z()));
+    if (i < 0 || j < 0 || k < 0 || i >= dims_.x() || j >= dims_.y() || k >= dims_.z()) return -1;
+    return (static_cast<std::int64_t>(k) * dims_.y() + j) * dims_.x() + i;
+  }
+
+  void mark(const Vec3f& p_mm, const Vec3f& n) {
+    const std::int64_t idx = index(p_mm);
+    if (idx < 0) return;
+    std::atomic_ref<std::uint32_t> cell(cells_[static_cast<std::size_t>(idx)]);
+    std::uint32_t expected = 0;
+    if (cell.load(std::memory_order_relaxed) != 0) return;
+    cell.compare_exchange_strong(expected, encode(n), std::memory_order_relaxed);
+  }
+
+  // True if the voxel at p was swept by a front whose normal opposes n (cosine < cos_limit).
+  bool other_side(const Vec3f& p_mm, const Vec3f& n, float cos_limit) const {
+    const std::int64_t idx = index(p_mm);
+    if (idx < 0) return false;
+    const std::uint32_t c =
+        std::atomic_ref<std::uint32_t>(const_cast<std::uint32_t&>(cells_[static_cast<std::size_t>(idx)]))
+            .load(std::memory_order_relaxed);
+    if (c == 0) return false;
+    return decode(c).dot(n) < cos_limit;
+  }
+
+  std::size_t marked_count() const {
+    return static_cast<std::size_t>(std::count_if(cells_.begin(), cells_.end(),
+                                                  [](std::uint32_t c) { return c != 0; }));
+  }
+
+ private:
+  static std::uint32_t encode(const Vec3f& n) {
+    auto q = [](float v) {
+      return static_cast<std::uint32_t>(static_cast<std::uint8_t>(
+          static_cast<std::int8_t>(std::lround(std::clamp(v, -1.0f, 1.0f) * 127.0f))));
+    };
+    return q(n.x()) | (q(n.y()) << 8) | (q(n.z()) << 16) | (1u << 24);
+  }
+  static Vec3f decode(std::uint32_t c) {
+    auto d = [](std::uint32_t b) {
+      return static_cast<float>(static_cast<std::int8_t>(static_cast<std::uint8_t>(b & 0xff))) / 127.0f;
+    };
+    return {d(c), d(c >> 8), d(c >> 16)};
+  }
+
+  Vec3i dims_;
+  Vec3f origin_mm_;
+  Vec3f inv_spacing_;
+  std::vector<std::uint32_t> cells_;
+};
+
+// ---------------------------------------------------------------------------------------------
+// Flat working copy of the mesh between two remeshing passes.
+struct Arrays {
+  std::vector<Vec3f> pos;
+  std::vector<Vec3f> next_pos;
+  std::vector<float> cost;
+  std::vector<StopReason> reason;
+  std::vector<Vec3f> anchor;
+  std::vector<float> path;
+  std::vector<Vec3f> normal;                      // vertex normals of the last iteration
+  std::vector<std::array<std::uint32_t, 3>> tri;
+  std::vector<Vec3f> face_normal;
+  // One-ring: for vertex v, entries ring_begin[v] .. ring_begin[v+1]-1, each an outgoing edge with
+  // its far vertex and the faces on its two sides (for H(PQ) and for equation (2)).
+  std::vector<std::uint32_t> ring_begin;
+  std::vector<std::uint32_t> ring_vertex;
+  std::vector<std::uint32_t> ring_face_left;
+  std::vector<std::uint32_t> ring_face_right;
+};
+
+void extract(const BalloonMesh& bm, Arrays& a) {
+  const TriMesh& m = bm.mesh();
+  const std::size_t nv = m.n_vertices();
+  a.pos.resize(nv);
+  a.next_pos.resize(nv);
+  a.cost.resize(nv);
+  a.reason.resize(nv);
+  a.anchor.resize(nv);
+  a.path.resize(nv);
+  a.normal.assign(nv, Vec3f::Zero());
+  a.ring_begin.assign(nv + 1, 0);
+  a.ring_vertex.clear();
+  a.ring_face_left.clear();
+  a.ring_face_right.clear();
+  for (auto v : m.vertices()) {
+    const auto& p = m.point(v);
+    const auto i = static_cast<std::size_t>(v.idx());
+    a.pos[i] = Vec3f(p[0], p[1], p[2]);
+    a.cost[i] = bm.state(v).cost;
+    a.reason[i] = bm.state(v).reason;
+    a.anchor[i] = bm.state(v).anchor_mm;
+    a.path[i] = bm.state(v).path_mm;
+    for (auto h : m.voh_range(v)) {
+      a.ring_vertex.push_back(static_cast<std::uint32_t>(m.to_vertex_handle(h).idx()));
+      a.ring_face_left.push_back(static_cast<std::uint32_t>(m.face_handle(h).idx()));
+      a.ring_face_right.push_back(
+          static_cast<std::uint32_t>(m.face_handle(m.opposite_halfedge_handle(h)).idx()));
+    }
+    a.ring_begin[i + 1] = static_cast<std::uint32_t>(a.ring_vertex.size());
+  }
+  a.tri.resize(m.n_faces());
+  a.face_normal.resize(m.n_faces());
+  for (auto f : m.faces()) {
+    int k = 0;
+    for (auto v : m.fv_range(f)) a.tri[static_cast<std::size_t>(f.idx())][k++] = static_cast<std::uint32_t>(v.idx());
+  }
+}
+
+void write_back(const Arrays& a, BalloonMesh& bm) {
+  TriMesh& m = bm.mesh();
+  for (auto v : m.vertices()) {
+    const auto i = static_cast<std::size_t>(v.idx());
+    m.set_point(v, OpenMesh::Vec3f(a.pos[i].x(), a.pos[i].y(), a.pos[i].z()));
+    bm.state(v).cost = a.cost[i];
+    bm.state(v).reason = a.reason[i];
+    bm.state(v).anchor_mm = a.anchor[i];
+    bm.state(v).path_mm = a.path[i];
+  }
+}
+
+template <typename F>
+void parallel_for(tbb::task_arena& arena, bool serial, std::size_t n, F&& f) {
+  if (serial || n < 1024) {
+    f(std::size_t{0}, n);
+    return;
+  }
+  arena.execute([&] {
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 512),
+                      [&](const tbb::blocked_range<std::size_t>& r) { f(r.begin(), r.end()); });
+  });
+}
+
+void check_options(const BalloonOptions& o, float voxel_mm) {
+  (void)voxel_mm;
+  auto fail = [](const std::string& what) { throw std::invalid_argument("BalloonOptions: " + what); };
+  if (!(o.time_step > 0.0f)) fail("time_step must be > 0");
+  if (!(o.inflation_vox > 0.0f)) fail("inflation_vox must be > 0");
+  if (o.time_step * o.inflation_vox > 0.5f)
+    fail("time_step * inflation_vox must be <= 0.5 voxel (no wall may be jumped over)");
+  if (!(o.umbrella_weight >= 0.0f) || o.time_step * o.umbrella_weight > 1.0f)
+    fail("time_step * umbrella_weight must be in [0, 1] (explicit Euler stability)");
+  if (!(o.initial_radius_vox >= 1.0f)) fail("initial_radius_vox must be >= 1");
+  if (!(o.tau_cost >= 0.0f)) fail("tau_cost must be >= 0 (0 = derive from the image)");
+  if (!(o.tau_cost_fraction > 0.0f && o.tau_cost_fraction < 1.0f))
+    fail("tau_cost_fraction must be in (0, 1)");
+  if (!(o.tau_curv > 0.0f)) fail("tau_curv must be > 0");
+  if (!(o.target_edge_vox > 0.0f)) fail("target_edge_vox must be > 0");
+  if (o.remesh_every_iterations < 1) fail("remesh_every_iterations must be >= 1");
+  if (o.max_iterations < 1) fail("max_iterations must be >= 1");
+  if (o.stall_window_iterations < 1) fail("stall_window_iterations must be >= 1");
+  if (o.threads < 0) fail("threads must be >= 0");
+}
+
+}  // namespace
+
+int euler_characteristic(const Mesh& mesh) {
+  std::vector<std::uint64_t> edges;
+  edges.reserve(mesh.triangles.size() * 3);
+  for (const auto& t : mesh.triangles)
+    for (int k = 0; k < 3; ++k) {
+      std::uint64_t a = t[k], b = t[(k + 1) % 3];
+      if (a > b) std::swap(a, b);
+      edges.push_back((a << 32) | b);
+    }
+  std::sort(edges.begin(), edges.end());
+  const auto e = std::unique(edges.begin(), edges.end()) - edges.begin();
+  return static_cast<int>(mesh.vertices.size()) - static_cast<int>(e) +
+         static_cast<int>(mesh.triangles.size());
+}
+
+BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::Gradient& gradient,
+                              const Vec3f& seed_mm, const BalloonOptions& options,
+                              std::stop_token stop) {
+  const auto t0 = std::chrono::steady_clock::now();
+  if (smoothed_in.empty()) throw std::invalid_argument("inflate_balloon: empty volume");
+  for (const volume::Volume* g : {&gradient.gx, &gradient.gy, &gradient.gz}) {
+    if (g->dims() != smoothed_in.dims() || g->type() != volume::VoxelType::Float32)
+      throw std::invalid_argument(
+          "inflate_balloon: gradient must be Float32 on the volume's grid (volume::central_gradient)");
+  }
+  if (!smoothed_in.contains_mm(seed_mm))
+    throw std::invalid_argument("inflate_balloon: seed (" + std::to_string(seed_mm.x()) + ", " +
+                                std::to_string(seed_mm.y()) + ", " + std::to_string(seed_mm.z()) +
+                                ") mm lies outside the volume");
+  const float vox_mm = smoothed_in.spacing_mm().minCoeff();
+  check_options(options, vox_mm);
+
+  // The sampler reads Float32 directly; convert other types once.
+  volume::Volume converted;
+  const volume::Volume* smoothed = &smoothed_in;
+  if (smoothed_in.type() != volume::VoxelType::Float32) {
+    converted = volume::Volume(smoothed_in.dims(), smoothed_in.spacing_mm(), smoothed_in.origin_mm(),
+                               volume::VoxelType::Float32);
+    converted.f32() = smoothed_in.to_float();
+    smoothed = &converted;
+  }
+  const ImageSampler sampler(*smoothed, gradient);
+
+  BalloonResult result;
+  BalloonStats& stats = result.stats;
+
+  // --- Seed region: statistics, hypoechoic check, τ_cost, S^0 radius ---
+  const float ball_mm = std::max(1.5f, options.initial_radius_vox) * vox_mm;
+  // The relative scale's floor needs the tissue level, which the rays estimate; the first pass
+  // (plain scale) gives it, the second measures the noise rate in the scale actually used.
+  internal::SeedRegion seed = internal::analyse_seed(sampler, *smoothed, seed_mm, vox_mm, ball_mm, {});
+  internal::CostScale scale;
+  if (options.relative_cost && seed.rays_hit > 0) {
+    scale.relative = true;
+    scale.floor = std::max(1e-3f, 0.1f * seed.tissue_level);
+    seed = internal::analyse_seed(sampler, *smoothed, seed_mm, vox_mm, ball_mm, scale);
+  }
+  stats.seed_level = seed.level;
+  stats.seed_sigma = seed.sigma;
+  stats.tissue_level = seed.tissue_level;
+  const float contrast = seed.tissue_level - seed.level;
+  const float sigma_eff = std::max(seed.sigma, 0.02f * std::abs(seed.level) + 0.5f);
+  auto finish_error = [&](std::string why) {
+    result.error = std::move(why);
+    stats.elapsed_ms =
+        std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+    return result;
+  };
+  // A hypoechoic target: most rays meet a clear rise to a tissue level well above the seed's.
+  if (2 * seed.rays_hit < seed.rays || !(contrast > 4.0f * sigma_eff) ||
+      !(seed.level < 0.8f * seed.tissue_level)) {
+    return finish_error(
+        "seed is not in a hypoechoic region: mean intensity " + std::to_string(seed.level) +
+        " around the seed, surroundings " +
+        (seed.rays_hit > 0 ? std::to_string(seed.tissue_level) : std::string("not brighter")) +
+        " (" + std::to_string(seed.rays_hit) + "/" + std::to_string(seed.rays) +
+        " rays reach a brighter wall)");
+  }
+  const float tau_cost =
+      options.tau_cost > 0.0f
+          ? options.tau_cost
+          : options.tau_cost_fraction * (scale.map(seed.tissue_level) - scale.map(seed.level));
+  // Speckle raises Ψ_cost a little on every step; over a long path (the far side of a torus)
+  // that alone would stop vertices before the wall. The allowance adds the rate measured inside
+  // the target times the path length to the threshold, so every vertex stops at the same point
+  // of the wall's rise however far it travelled.
+  const float noise_per_mm = options.noise_allowance ? seed.noise_rise_per_mm : 0.0f;
+  stats.noise_rise_per_mm = seed.noise_rise_per_mm;
+  stats.tau_cost_used = tau_cost;
+
+  // S^0 radius: initial_radius_vox, but inside the rays' safe reach (the sphere must start inside
+  // the object) and not below one voxel.
+  float radius_mm = options.initial_radius_vox * vox_mm;
+  radius_mm = std::min(radius_mm, 0.8f * seed.safe_radius_mm);
+  radius_mm = std::max(radius_mm, 1.0f * vox_mm);
+  stats.initial_radius_mm = radius_mm;
+
+  BalloonMesh bm;
+  internal::make_uv_sphere(bm, seed_mm, radius_mm, 10, 11);
+
+  const float h = options.time_step;
+  const float lambda = options.umbrella_weight;
+  const float mu_mm = options.inflation_vox * vox_mm;
+  const internal::RemeshLimits limits{0.8f * options.target_edge_vox * vox_mm,
+                                      (4.0f / 3.0f) * options.target_edge_vox * vox_mm};
+  // Vertices stop at the volume's edge (half a voxel inside the voxel-centre box): no data beyond.
+  const Vec3f box_lo = smoothed->min_mm() + Vec3f::Constant(0.5f * vox_mm);
+  const Vec3f box_hi = smoothed->max_mm() - Vec3f::Constant(0.5f * vox_mm);
+  const float stall_mm = options.stall_motion_vox * vox_mm;
+
+  const int threads = options.threads > 0 ? options.threads
+                                          : std::max(1, static_cast<int>(std::thread::hardware_concurrency()));
+  tbb::task_arena arena(threads);
+  const bool serial = threads == 1;
+
+  FrontMarks marks(*smoothed);
+  Arrays a;
+  extract(bm, a);
+
+  auto compute_normals = [&] {
+    parallel_for(arena, serial, a.tri.size(), [&](std::size_t b, std::size_t e) {
+      for (std::size_t f = b; f < e; ++f) {
+        const auto& t = a.tri[f];
+        const Vec3f n = (a.pos[t[1]] - a.pos[t[0]]).cross(a.pos[t[2]] - a.pos[t[0]]);
+        const float len = n.norm();
+        a.face_normal[f] = len > 0.0f ? Vec3f(n / len) : Vec3f::Zero();
+      }
+    });
+    parallel_for(arena, serial, a.pos.size(), [&](std::size_t b, std::size_t e) {
+      for (std::size_t v = b; v < e; ++v) {
+        Vec3f n = Vec3f::Zero();  // equation (2): normalised sum of the unit triangle normals
+        for (std::uint32_t r = a.ring_begin[v]; r < a.ring_begin[v + 1]; ++r)
+          n += a.face_normal[a.ring_face_left[r]];
+        const float len = n.norm();
+        a.normal[v] = len > 0.0f ? Vec3f(n / len) : Vec3f::Zero();
+      }
+    });
+  };
+
+  // Marks the surface samples of every vertex that moved: its own voxel and the midpoints of its
+  // edges. Edges are at most 4/3 L <= 2 voxels long, so the samples lie at most a voxel apart and
+  // a front sweeping half a voxel per iteration leaves a solid band of marked voxels.
+  std::vector<std::uint8_t> moved(a.pos.size(), 1);
+  auto mark_front = [&] {
+    parallel_for(arena, serial, a.pos.size(), [&](std::size_t b, std::size_t e) {
+      for (std::size_t v = b; v < e; ++v) {
+        if (!moved[v]) continue;
+        marks.mark(a.pos[v], a.normal[v]);
+        for (std::uint32_t r = a.ring_begin[v]; r < a.ring_begin[v + 1]; ++r) {
+          const std::uint32_t q = a.ring_vertex[r];
+          if (q < v && moved[q]) continue;  // that edge is marked from q
+          marks.mark(0.5f * (a.pos[v] + a.pos[q]), a.normal[v]);
+        }
+      }
+    });
+  };
+
+  compute_normals();
+  mark_front();
+
+  int it = 0;
+  bool all_stopped = false;
+  int last_window_moving = std::numeric_limits<int>::max();
+  int windows_without_drop = 0;
+  for (it = 1; it <= options.max_iterations; ++it) {
+    if (stop.stop_requested()) {
+      stats.cancelled = true;
+      break;
+    }
+    // compute_normals() is current for a.pos here.
+    std::atomic<int> moving_count{0};
+    parallel_for(arena, serial, a.pos.size(), [&](std::size_t b, std::size_t e) {
+      int local_moving = 0;
+      for (std::size_t v = b; v < e; ++v) {
+        const Vec3f p = a.pos[v];
+        a.next_pos[v] = p;
+        moved[v] = 0;
+        if (a.reason[v] != StopReason::Moving) continue;
+        const std::uint32_t r0 = a.ring_begin[v], r1 = a.ring_begin[v + 1];
+        const Vec3f n = a.normal[v];
+        Vec3f centroid = Vec3f::Zero();
+        float curvature = 0.0f;
+        for (std::uint32_t r = r0; r < r1; ++r) {
+          const Vec3f q = a.pos[a.ring_vertex[r]];
+          centroid += q;
+          // H(PQ)/|PQ| = |ê × (n₁ − n₂)| (Sullivan), normalised by the edge length.
+          const Vec3f edge = q - p;
+          const float len = edge.norm();
+          if (len > 0.0f)
+            curvature += (edge / len).cross(a.face_normal[a.ring_face_left[r]] -
+                                            a.face_normal[a.ring_face_right[r]]).norm();
+        }
+        const float deg = static_cast<float>(r1 - r0);
+        curvature /= deg;
+        if (curvature > options.tau_curv) {
+          a.reason[v] = StopReason::Curvature;
+          continue;
+        }
+        const Vec3f umbrella = centroid / deg - p;  // U(P)
+        const Vec3f d = h * (lambda * umbrella + mu_mm * n);
+        const Vec3f target = p + d;
+        if ((target.array() < box_lo.array()).any() || (target.array() > box_hi.array()).any()) {
+          a.reason[v] = StopReason::Boundary;  // the volume's edge bounds the object
+          continue;
+        }
+        if (marks.other_side(target, n, options.self_intersection_cos)) {
+          a.reason[v] = StopReason::SelfIntersection;  // a type-1 vertex
+          continue;
+        }
+        // Ψ_cost += max(0, <∇I(S^n), S^{n+1} − S^n>): the rise of intensity along the path.
+        float value;
+        Vec3f grad;
+        sampler.value_and_gradient(p, value, grad);
+        a.cost[v] += std::max(0.0f, grad.dot(d)) * scale.weight(value);
+        a.next_pos[v] = target;
+        moved[v] = 1;
+        a.path[v] += d.norm();
+        if (a.cost[v] > tau_cost + noise_per_mm * a.path[v]) a.reason[v] = StopReason::Boundary;
+        else ++local_moving;
+      }
+      moving_count.fetch_add(local_moving, std::memory_order_relaxed);
+    });
+    std::swap(a.pos, a.next_pos);
+    compute_normals();
+    mark_front();
+
+    if (moving_count.load() == 0) {
+      all_stopped = true;
+      break;
+    }
+    // Stall: over a whole window no moving vertex got further than stall_motion_vox per
+    // iteration from where the window started (vertices pinned where umbrella and inflation
+    // balance, e.g. in the crease between a needle and the wall, never trip a stop indicator).
+    if (it % options.stall_window_iterations == 0) {
+      const float limit_mm = stall_mm * static_cast<float>(options.stall_window_iterations);
+      bool progress = false;
+      for (std::size_t v = 0; v < a.pos.size(); ++v) {
+        if (a.reason[v] == StopReason::Moving && (a.pos[v] - a.anchor[v]).norm() > limit_mm)
+          progress = true;
+        a.anchor[v] = a.pos[v];
+      }
+      // A handful of vertices in a crease can also be split off and melted back by remeshing
+      // every pass, so they look as if they moved; if the number of moving vertices is tiny and
+      // has not dropped for three windows, the evolution is over as well.
+      const int now_moving = moving_count.load();
+      windows_without_drop = now_moving < last_window_moving ? 0 : windows_without_drop + 1;
+      last_window_moving = now_moving;
+      const bool few = now_moving <= std::max(10, static_cast<int>(a.pos.size() / 100));
+      if (!progress || (few && windows_without_drop >= 3)) {
+        stats.stalled = true;
+        break;
+      }
+    }
+    if (it % options.remesh_every_iterations == 0) {
+      write_back(a, bm);
+      const auto counts = internal::remesh(bm, limits);
+      ++stats.remesh_passes;
+      stats.splits += counts.splits;
+      stats.collapses += counts.collapses;
+      extract(bm, a);
+      moved.assign(a.pos.size(), 0);
+      compute_normals();
+    }
+  }
+  stats.iterations = std::min(it, options.max_iterations);
+  const bool hit_limit = !all_stopped && !stats.stalled && !stats.cancelled;
+  if (hit_limit)
+    for (auto& r : a.reason)
+      if (r == StopReason::Moving) r = StopReason::IterationLimit;
+
+  write_back(a, bm);
+  bm.mesh().garbage_collection();
+  result.mesh = internal::to_plain_mesh(bm.mesh());
+  result.stop.reserve(result.mesh.vertices.size());
+  for (auto v : bm.mesh().vertices()) {
+    const StopReason r = bm.state(v).reason;
+    result.stop.push_back(r);
+    ++stats.stop_counts[static_cast<std::size_t>(r)];
+  }
+  result.converged = all_stopped || stats.stalled;
+  stats.elapsed_ms =
+      std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+  return result;
+}
+
+BalloonResult inflate_balloon(const volume::Volume& image, float sigma_mm, const Vec3f& seed_mm,
+                              const BalloonOptions& options, std::stop_token stop) {
+  if (image.empty()) throw std::invalid_argument("inflate_balloon: empty volume");
+  if (!image.contains_mm(seed_mm))
+    throw std::invalid_argument("inflate_balloon: seed lies outside the volume");
+  const volume::Volume smoothed = volume::smooth_gaussian(image, sigma_mm);
+  const volume::Gradient gradient = volume::central_gradient(smoothed);
+  return inflate_balloon(smoothed, gradient, seed_mm, options, std::move(stop));
+}
+
+}  // namespace sonomesh::segment

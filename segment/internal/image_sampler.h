@@ -1,0 +1,142 @@
+#pragma once
+/// @file
+/// @brief Trilinear sampling of the smoothed image and its gradient in one pass (shared weights),
+/// clamped at the border like volume::sample_mm. The per-vertex loop samples the gradient once per
+/// vertex per iteration, so this avoids three separate lookups through volume::sample_gradient_mm.
+
+#include <algorithm>
+#include <cmath>
+#include <vector>
+
+#include "volume/volume.h"
+
+namespace sonomesh::segment::internal {
+
+using volume::Vec3f;
+using volume::Vec3i;
+
+class ImageSampler {
+ public:
+  /// `image` and the gradient components must be Float32 volumes on the same grid (the caller
+  /// converts), and must outlive the sampler.
+  ImageSampler(const volume::Volume& image, const volume::Gradient& gradient)
+      : dims_(image.dims()),
+        origin_mm_(image.origin_mm()),
+        inv_spacing_(image.spacing_mm().cwiseInverse()),
+        img_(image.f32().data()),
+        gx_(gradient.gx.f32().data()),
+        gy_(gradient.gy.f32().data()),
+        gz_(gradient.gz.f32().data()) {}
+
+  float value(const Vec3f& p_mm) const {
+    Corners c = corners(p_mm);
+    float v = 0.0f;
+    for (int i = 0; i < 8; ++i) v += c.w[i] * img_[c.idx[i]];
+    return v;
+  }
+
+  Vec3f gradient(const Vec3f& p_mm) const {
+    Corners c = corners(p_mm);
+    float x = 0.0f, y = 0.0f, z = 0.0f;
+    for (int i = 0; i < 8; ++i) {
+      x += c.w[i] * gx_[c.idx[i]];
+      y += c.w[i] * gy_[c.idx[i]];
+      z += c.w[i] * gz_[c.idx[i]];
+    }
+    return {x, y, z};
+  }
+
+  /// Value and gradient with one set of weights.
+  void value_and_gradient(const Vec3f& p_mm, float& value, Vec3f& grad) const {
+    Corners c = corners(p_mm);
+    float v = 0.0f, x = 0.0f, y = 0.0f, z = 0.0f;
+    for (int i = 0; i < 8; ++i) {
+      v += c.w[i] * img_[c.idx[i]];
+      x += c.w[i] * gx_[c.idx[i]];
+      y += c.w[i] * gy_[c.idx[i]];
+      z += c.w[i] * gz_[c.idx[i]];
+    }
+    value = v;
+    grad = Vec3f(x, y, z);
+  }
+
+  const Vec3i& dims() const { return dims_; }
+
+ private:
+  struct Corners {
+    std::size_t idx[8];
+    float w[8];
+  };
+
+  Corners corners(const Vec3f& p_mm) const {
+    Corners c;
+    std::size_t base[3][2];
+    float frac[3];
+    for (int a = 0; a < 3; ++a) {
+      const int n = dims_[a];
+      float u = (p_mm[a] - origin_mm_[a]) * inv_spacing_[a];
+      u = std::clamp(u, 0.0f, static_cast<float>(n - 1));
+      int i0 = static_cast<int>(u);
+      if (i0 >= n - 1) i0 = std::max(n - 2, 0);
+      const int i1 = std::min(i0 + 1, n - 1);
+      frac[a] = std::clamp(u - static_cast<float>(i0), 0.0f, 1.0f);
+      base[a][0] = static_cast<std::size_t>(i0);
+      base[a][1] = static_cast<std::size_t>(i1);
+    }
+    const std::size_t nx = static_cast<std::size_t>(dims_.x());
+    const std::size_t nxy = nx * static_cast<std::size_t>(dims_.y());
+    int i = 0;
+    for (int dz = 0; dz < 2; ++dz)
+      for (int dy = 0; dy < 2; ++dy)
+        for (int dx = 0; dx < 2; ++dx) {
+          c.idx[i] = base[2][dz] * nxy + base[1][dy] * nx + base[0][dx];
+          c.w[i] = (dx ? frac[0] : 1.0f - frac[0]) * (dy ? frac[1] : 1.0f - frac[1]) *
+                   (dz ? frac[2] : 1.0f - frac[2]);
+          ++i;
+        }
+    return c;
+  }
+
+  Vec3i dims_;
+  Vec3f origin_mm_;
+  Vec3f inv_spacing_;
+  const float* img_;
+  const float* gx_;
+  const float* gy_;
+  const float* gz_;
+};
+
+/// What the image says around the seed: the basis of the default τ_cost and of the "seed is not
+/// in a hypoechoic region" refusal.
+/// The intensity scale the boundary cost accumulates in. Plain: grey levels (the paper's Ψ_cost).
+/// Relative: F(I) = I/f below the floor f, 1 + ln(I/f) above, so dF = dI / max(I, f): a rise
+/// counts relative to the level it starts from. Ultrasound attenuation and acoustic shadows are
+/// multiplicative, so in this scale a wall in a needle's shadow (all levels × 0.3) rises as much
+/// as an unshadowed one.
+struct CostScale {
+  bool relative = false;
+  float floor = 1.0f;
+  float weight(float intensity) const { return relative ? 1.0f / std::max(intensity, floor) : 1.0f; }
+  float map(float intensity) const {
+    if (!relative) return intensity;
+    return intensity < floor ? intensity / floor : 1.0f + std::log(intensity / floor);
+  }
+};
+
+struct SeedRegion {
+  float level = 0.0f;         // mean smoothed intensity in a small ball around the seed
+  float sigma = 0.0f;         // its standard deviation
+  float tissue_level = 0.0f;  // median over rays of the level just beyond the first rise
+  int rays = 0;
+  int rays_hit = 0;           // rays that found a sustained rise to a brighter level
+  float safe_radius_mm = 0.0f;  // distance along the rays that stays at the seed's level
+  float noise_rise_per_mm = 0.0f;  // median over rays of the positive rise per mm (in the cost
+                                   // scale) inside the target: what speckle adds to Ψ_cost per mm
+};
+
+/// Samples a ball of `ball_radius_mm` around the seed and `ray_count` rays out to the volume edge.
+SeedRegion analyse_seed(const ImageSampler& sampler, const volume::Volume& grid,
+                        const Vec3f& seed_mm, float voxel_mm, float ball_radius_mm,
+                        const CostScale& scale, int ray_count = 64);
+
+}  // namespace sonomesh::segment::internal

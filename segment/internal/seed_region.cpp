@@ -1,0 +1,120 @@
+// Image statistics around the seed: the default τ_cost and the hypoechoic-seed check.
+#include <algorithm>
+#include <cmath>
+#include <vector>
+
+#include "segment/internal/image_sampler.h"
+
+namespace sonomesh::segment::internal {
+namespace {
+
+float median(std::vector<float> v) {
+  if (v.empty()) return 0.0f;
+  const auto mid = v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2);
+  std::nth_element(v.begin(), mid, v.end());
+  return *mid;
+}
+
+}  // namespace
+
+SeedRegion analyse_seed(const ImageSampler& sampler, const volume::Volume& grid,
+                        const Vec3f& seed_mm, float voxel_mm, float ball_radius_mm,
+                        const CostScale& scale, int ray_count) {
+  SeedRegion r;
+  // Ball statistics on a half-voxel lattice.
+  const float step = 0.5f * voxel_mm;
+  const int n = static_cast<int>(std::ceil(ball_radius_mm / step));
+  double sum = 0.0, sum2 = 0.0;
+  int count = 0;
+  for (int k = -n; k <= n; ++k)
+    for (int j = -n; j <= n; ++j)
+      for (int i = -n; i <= n; ++i) {
+        const Vec3f d(i * step, j * step, k * step);
+        if (d.norm() > ball_radius_mm) continue;
+        const Vec3f p = seed_mm + d;
+        if (!grid.contains_mm(p)) continue;
+        const double v = sampler.value(p);
+        sum += v;
+        sum2 += v * v;
+        ++count;
+      }
+  if (count == 0) return r;
+  r.level = static_cast<float>(sum / count);
+  r.sigma = static_cast<float>(std::sqrt(std::max(0.0, sum2 / count - (sum / count) * (sum / count))));
+  // A noise-free image has sigma 0; a floor keeps "a few sigma above" meaningful there.
+  const float sigma_eff = std::max(r.sigma, 0.02f * std::abs(r.level) + 0.5f);
+
+  // Rays in Fibonacci-sphere directions, half-voxel steps, out to the volume's edge.
+  const float golden = static_cast<float>(M_PI * (3.0 - std::sqrt(5.0)));
+  std::vector<std::vector<float>> profiles(static_cast<std::size_t>(ray_count));
+  // Per ray and sample: max(0, <∇I, step along the ray>), the increment of Ψ_cost exactly as a
+  // vertex computes it (central-difference gradient, not sample differences, which keep more of
+  // the speckle's high frequencies and overstate the rate).
+  std::vector<std::vector<float>> rises(static_cast<std::size_t>(ray_count));
+  std::vector<float> upper;
+  for (int q = 0; q < ray_count; ++q) {
+    const float z = 1.0f - 2.0f * (q + 0.5f) / ray_count;
+    const float rad = std::sqrt(std::max(0.0f, 1.0f - z * z));
+    const float phi = golden * q;
+    const Vec3f dir(rad * std::cos(phi), rad * std::sin(phi), z);
+    auto& profile = profiles[static_cast<std::size_t>(q)];
+    auto& rise = rises[static_cast<std::size_t>(q)];
+    for (float t = 0.0f;; t += step) {
+      const Vec3f p = seed_mm + t * dir;
+      if (!grid.contains_mm(p)) break;
+      float value;
+      Vec3f grad;
+      sampler.value_and_gradient(p, value, grad);
+      profile.push_back(value);
+      rise.push_back(std::max(0.0f, grad.dot(dir) * step) * scale.weight(value));
+    }
+    if (profile.size() >= 8) {
+      std::vector<float> sorted = profile;
+      const auto at = sorted.begin() + static_cast<std::ptrdiff_t>(sorted.size() * 3 / 4);
+      std::nth_element(sorted.begin(), at, sorted.end());
+      upper.push_back(*at);
+    }
+  }
+  r.rays = ray_count;
+  // First guess of the tissue level: the rays' upper quartiles (a ray from a seed in a target
+  // smaller than the volume spends a good part of its length in tissue). It only places the
+  // wall-crossing threshold; the per-ray levels below refine it.
+  const float tissue_guess = median(upper);
+  const float crossing = r.level + 0.5f * std::max(tissue_guess - r.level, 3.0f * sigma_eff);
+  const int sustain = static_cast<int>(std::ceil(2.0f * voxel_mm / step));  // two voxels
+
+  std::vector<float> tissue, rates;
+  float safe_mm = 1e30f;
+  for (std::size_t q = 0; q < profiles.size(); ++q) {
+    const auto& profile = profiles[q];
+    const int n_s = static_cast<int>(profile.size());
+    // The wall: the first place where the profile stays above the crossing level for two voxels
+    // (speckle blobs inside the target are shorter than that after smoothing).
+    int hit = -1;
+    for (int s = 0; s + sustain <= n_s && hit < 0; ++s) {
+      bool above = true;
+      for (int t = s; t < s + sustain && above; ++t) above = profile[static_cast<std::size_t>(t)] > crossing;
+      if (above) hit = s;
+    }
+    safe_mm = std::min(safe_mm, (hit >= 0 ? hit : n_s) * step);
+    if (hit < 0) continue;
+    const int from = hit + sustain / 2, to = std::min(n_s, hit + 6 * sustain);
+    if (to - from < 2) continue;
+    ++r.rays_hit;
+    tissue.push_back(median(std::vector<float>(profile.begin() + from, profile.begin() + to)));
+    // The rate at which speckle alone raises Ψ_cost inside the target: positive rises per mm on
+    // the part of the ray that is clearly before the wall.
+    const int inside_end = std::min(hit - 2 * sustain, static_cast<int>(0.6f * static_cast<float>(hit)));
+    if (inside_end >= 4) {
+      float rise = 0.0f;
+      for (int s = 0; s < inside_end; ++s) rise += rises[q][static_cast<std::size_t>(s)];
+      rates.push_back(rise / (inside_end * step));
+    }
+  }
+  r.tissue_level = median(tissue);
+  r.noise_rise_per_mm = median(rates);
+  r.safe_radius_mm = std::max(0.0f, safe_mm - voxel_mm);
+  return r;
+}
+
+}  // namespace sonomesh::segment::internal

@@ -1,0 +1,114 @@
+#pragma once
+/// @file
+/// @brief Step 1 of the two-step method: the balloon active contour (method.md §1-3).
+///
+/// A small triangulated sphere at the seed inflates by explicit Euler steps
+///   S^{n+1} = S^n + h·k^n·(λ·U(S^n) + μ·n^n)
+/// (umbrella operator U, Kobbelt et al. 1998; vertex normal of equation (2)); every vertex stops
+/// for good (k = 0) on the boundary cost, the edge curvature, a threatened self-intersection, the
+/// volume's edge, or the iteration limit, and records why. The mesh is remeshed every few
+/// iterations (split > 4/3 L, collapse < 4/5 L; Botsch and Kobbelt 2004) and stays closed,
+/// manifold, genus 0 and outward oriented. Its type-1 (self-intersection) vertices are what the
+/// reconstruction cuts out.
+///
+/// Units: "vox" is the volume's smallest voxel spacing (so steps stay below a voxel on every
+/// axis of an anisotropic grid); positions are in mm; costs in grey levels of the smoothed image.
+
+#include <array>
+#include <stop_token>
+#include <string>
+#include <vector>
+
+#include "segment/mesh.h"
+#include "volume/volume.h"
+
+namespace sonomesh::segment {
+
+struct BalloonOptions {
+  // --- Evolution (explicit Euler) ---
+  float time_step = 1.0f;         // h, per iteration (dimensionless time)
+  float inflation_vox = 0.3f;     // μ, vox per unit time. h·μ is the outward step per iteration
+                                  // and must stay <= 0.5 vox so no wall is jumped over.
+  float umbrella_weight = 0.2f;   // λ, per unit time: fraction of the way to the neighbours'
+                                  // centroid per unit time. h·λ must be in [0, 1] (stability).
+  float initial_radius_vox = 2.0f;  // S^0 radius; shrunk (down to 1 vox) if the sphere would
+                                    // reach brighter tissue or leave the volume.
+
+  // --- Stop indicators ---
+  bool relative_cost = true;      // accumulate Ψ_cost in a relative scale: each rise divided by
+                                  // the intensity it starts from (floored at 10 % of the tissue
+                                  // level), i.e. the rise of log I. Ultrasound attenuation and
+                                  // acoustic shadows are multiplicative, so a wall in a needle's
+                                  // shadow then costs as much as a bright one. false: grey levels,
+                                  // the paper's plain Ψ_cost.
+  float tau_cost = 0.0f;          // τ_cost in the cost's scale (grey levels if !relative_cost);
+                                  // 0 = derive from the image around the seed:
+                                  // tau_cost_fraction · (F(tissue level) − F(seed level)).
+  float tau_cost_fraction = 0.5f; // used when tau_cost == 0 (0.5: stop at the wall's mid level,
+                                  // where a step edge of the object lies after smoothing)
+  bool noise_allowance = true;    // P stops when Ψ_cost(P) > τ_cost + ρ·path(P), ρ the rate at
+                                  // which speckle alone raises Ψ_cost inside the target (measured
+                                  // on the rays from the seed), path(P) the distance P travelled.
+                                  // Without it, long paths stop early. false: the plain rule.
+  float tau_curv = 1.2f;          // τ_curv: mean over P's edges of H(PQ)/|PQ| (dimensionless;
+                                  // = |n₁−n₂|·sin∠, 0 flat, 2 folded back); stop above
+  float self_intersection_cos = -0.5f;  // a marked voxel is "the other side" if the normal of
+                                        // the front that marked it and P's normal have a cosine
+                                        // below this (fronts meeting head-on have about −1)
+
+  // --- Remeshing ---
+  float target_edge_vox = 1.5f;   // L: split edges > 4/3 L, collapse edges < 4/5 L
+  int remesh_every_iterations = 5;
+
+  // --- Termination ---
+  int max_iterations = 2000;      // remaining moving vertices then get IterationLimit
+  int stall_window_iterations = 20;  // stop when no moving vertex got further than
+  float stall_motion_vox = 0.02f;    // stall_motion_vox per iteration over this window
+
+  int threads = 0;                // 0 = all hardware threads, 1 = serial
+};
+
+struct BalloonStats {
+  int iterations = 0;
+  std::array<int, 5> stop_counts{};  // vertices per StopReason (indexed by its value)
+  float tau_cost_used = 0.0f;        // in the cost's scale (grey levels if !relative_cost)
+  float seed_level = 0.0f;           // mean smoothed intensity around the seed
+  float seed_sigma = 0.0f;           // its standard deviation
+  float tissue_level = 0.0f;         // estimated surrounding tissue level (ray sampling)
+  float noise_rise_per_mm = 0.0f;    // ρ, grey levels per mm
+  float initial_radius_mm = 0.0f;
+  int remesh_passes = 0;
+  int splits = 0;
+  int collapses = 0;
+  double elapsed_ms = 0.0;
+  bool stalled = false;             // ended because nothing moved any more
+  bool cancelled = false;           // ended because the stop_token was triggered
+};
+
+struct BalloonResult {
+  Mesh mesh;                        // closed, manifold, genus 0, outward oriented (mm)
+  std::vector<StopReason> stop;     // per vertex of mesh
+  BalloonStats stats;
+  bool converged = false;           // every vertex stopped, or the evolution stalled
+  std::string error;                // non-empty: why there is no balloon (mesh empty then)
+};
+
+/// Inflates the balloon from `seed_mm` in a volume the caller has already smoothed (method.md
+/// §0), with the central-difference gradient of that smoothed volume (same grid).
+/// A seed that is not in a hypoechoic region (brighter than or as bright as its surroundings,
+/// e.g. on the needle or in tissue) gives a result with `error` set and an empty mesh.
+/// @throws std::invalid_argument if `seed_mm` lies outside the volume, if the gradient's grid
+///         differs from the volume's, or for options out of range (h·μ > 0.5 vox, h·λ ∉ [0, 1],
+///         non-positive edge length).
+BalloonResult inflate_balloon(const volume::Volume& smoothed, const volume::Gradient& gradient,
+                              const Vec3f& seed_mm, const BalloonOptions& options = {},
+                              std::stop_token stop = {});
+
+/// Convenience: smooths `image` with a Gaussian of `sigma_mm`, takes its gradient, inflates.
+BalloonResult inflate_balloon(const volume::Volume& image, float sigma_mm, const Vec3f& seed_mm,
+                              const BalloonOptions& options = {}, std::stop_token stop = {});
+
+/// Genus-0 check helper for callers and tests: V − E + F of a closed triangle mesh.
+int euler_characteristic(const Mesh& mesh);
+
+}  // namespace sonomesh::segment
