@@ -376,7 +376,7 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::G
 
   int it = 0;
   bool all_stopped = false;
-  int last_window_moving = std::numeric_limits<int>::max();
+  int fewest_moving = std::numeric_limits<int>::max();
   int windows_without_drop = 0;
   for (it = 1; it <= options.max_iterations; ++it) {
     if (stop.stop_requested()) {
@@ -455,12 +455,14 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::G
           progress = true;
         a.anchor[v] = a.pos[v];
       }
-      // A handful of vertices in a crease can also be split off and melted back by remeshing
-      // every pass, so they look as if they moved; if the number of moving vertices is tiny and
-      // has not dropped for three windows, the evolution is over as well.
+      // Vertices in a crease (along a needle) can also be split off and melted back by
+      // remeshing every pass, so they look as if they moved; if at most 1 % of the vertices
+      // still move and their number has not dropped for three windows, the evolution is over.
       const int now_moving = moving_count.load();
-      windows_without_drop = now_moving < last_window_moving ? 0 : windows_without_drop + 1;
-      last_window_moving = now_moving;
+      // (Compared with the fewest seen: remeshing creates moving vertices, so the count can
+      // oscillate without ever settling.)
+      windows_without_drop = now_moving < fewest_moving ? 0 : windows_without_drop + 1;
+      fewest_moving = std::min(fewest_moving, now_moving);
       const bool few = now_moving <= std::max(10, static_cast<int>(a.pos.size() / 100));
       if (!progress || (few && windows_without_drop >= 3)) {
         stats.stalled = true;
