@@ -1,0 +1,229 @@
+#include "daemon/internal/run_stats.h"
+
+#include <algorithm>
+#include <cmath>
+#include <sstream>
+#include <vector>
+
+namespace sonomesh::daemon {
+
+namespace {
+constexpr std::array<JournalStatus, 5> kStatuses{JournalStatus::Processed, JournalStatus::Skipped,
+                                                 JournalStatus::Failed, JournalStatus::Rejected,
+                                                 JournalStatus::Lost};
+
+// Prometheus float formatting: plain decimal, "+Inf" for infinity.
+std::string prom_number(double v) {
+  if (std::isinf(v)) return v > 0 ? "+Inf" : "-Inf";
+  if (std::isnan(v)) return "NaN";
+  std::ostringstream out;
+  out.precision(9);
+  out << v;
+  return out.str();
+}
+
+double quantile_of(std::vector<double> values, double q) {
+  std::sort(values.begin(), values.end());
+  // Nearest rank: the smallest value with at least q of the samples at or below it.
+  const double rank = std::ceil(q * static_cast<double>(values.size()));
+  const std::size_t index =
+      static_cast<std::size_t>(std::clamp(rank, 1.0, static_cast<double>(values.size()))) - 1;
+  return values[index];
+}
+}  // namespace
+
+const char* to_string(SourceState state) {
+  switch (state) {
+    case SourceState::Connecting: return "connecting";
+    case SourceState::Connected: return "connected";
+    case SourceState::Reconnecting: return "reconnecting";
+    case SourceState::Ended: return "ended";
+  }
+  return "unknown";
+}
+
+RunStats::RunStats() : started_(std::chrono::steady_clock::now()) {}
+
+void RunStats::set_source(std::string describe, bool live) {
+  std::lock_guard lock(mutex_);
+  source_ = std::move(describe);
+  live_ = live;
+}
+
+void RunStats::count(JournalStatus status, std::uint64_t n) {
+  std::lock_guard lock(mutex_);
+  counters_[status] += n;
+}
+
+void RunStats::add_latency(double latency_ms) {
+  std::lock_guard lock(mutex_);
+  recent_latency_ms_.push_back(latency_ms);
+  while (recent_latency_ms_.size() > kLatencyWindow) recent_latency_ms_.pop_front();
+  const double s = latency_ms / 1000.0;
+  for (std::size_t i = 0; i < kLatencyBuckets.size(); ++i) {
+    if (s <= kLatencyBuckets[i]) ++bucket_counts_[i];
+  }
+  ++latency_count_;
+  latency_sum_s_ += s;
+}
+
+void RunStats::add_stage_time(const std::string& stage, double ms) {
+  std::lock_guard lock(mutex_);
+  stage_sum_ms_[stage] += ms;
+  ++stage_count_[stage];
+}
+
+void RunStats::set_source_state(SourceState state) {
+  std::lock_guard lock(mutex_);
+  source_state_ = state;
+}
+
+void RunStats::set_last_error(std::string error) {
+  std::lock_guard lock(mutex_);
+  last_error_ = std::move(error);
+  last_error_time_ = utc_timestamp();
+}
+
+void RunStats::set_queue_depth(std::size_t depth, std::size_t capacity) {
+  std::lock_guard lock(mutex_);
+  queue_depth_ = depth;
+  queue_capacity_ = capacity;
+}
+
+void RunStats::set_seed(std::optional<std::array<float, 3>> seed_mm, std::string origin) {
+  std::lock_guard lock(mutex_);
+  seed_mm_ = seed_mm;
+  seed_origin_ = std::move(origin);
+}
+
+void RunStats::set_last_processed(std::uint64_t sequence, int genus) {
+  std::lock_guard lock(mutex_);
+  last_sequence_ = sequence;
+  last_genus_ = genus;
+}
+
+void RunStats::count_outage() {
+  std::lock_guard lock(mutex_);
+  ++outages_;
+}
+
+SourceState RunStats::source_state() const {
+  std::lock_guard lock(mutex_);
+  return source_state_;
+}
+
+std::uint64_t RunStats::counter(JournalStatus status) const {
+  std::lock_guard lock(mutex_);
+  const auto it = counters_.find(status);
+  return it == counters_.end() ? 0 : it->second;
+}
+
+std::optional<double> RunStats::latency_quantile_ms(double q) const {
+  std::lock_guard lock(mutex_);
+  if (recent_latency_ms_.empty()) return std::nullopt;
+  return quantile_of({recent_latency_ms_.begin(), recent_latency_ms_.end()}, q);
+}
+
+nlohmann::json RunStats::status_json() const {
+  std::lock_guard lock(mutex_);
+  nlohmann::json j;
+  nlohmann::json counts = nlohmann::json::object();
+  std::uint64_t total = 0;
+  for (JournalStatus s : kStatuses) {
+    const auto it = counters_.find(s);
+    const std::uint64_t n = it == counters_.end() ? 0 : it->second;
+    counts[to_string(s)] = n;
+    total += n;
+  }
+  j["volumes"] = counts;
+  j["volumes_total"] = total;
+  nlohmann::json latency = {{"window", recent_latency_ms_.size()}};
+  if (recent_latency_ms_.empty()) {
+    latency["p50"] = nullptr;
+    latency["p95"] = nullptr;
+  } else {
+    std::vector<double> v(recent_latency_ms_.begin(), recent_latency_ms_.end());
+    latency["p50"] = quantile_of(v, 0.5);
+    latency["p95"] = quantile_of(v, 0.95);
+    latency["max"] = *std::max_element(v.begin(), v.end());
+  }
+  j["latency_ms"] = latency;
+  j["source"] = {{"uri", source_}, {"live", live_}, {"state", to_string(source_state_)},
+                 {"outages", outages_}};
+  j["last_error"] = last_error_.empty() ? nlohmann::json(nullptr)
+                                        : nlohmann::json{{"message", last_error_},
+                                                         {"time", last_error_time_}};
+  j["queue"] = {{"depth", queue_depth_}, {"capacity", queue_capacity_}};
+  j["seed"] = {{"mm", seed_mm_ ? nlohmann::json(*seed_mm_) : nlohmann::json(nullptr)},
+               {"origin", seed_origin_}};
+  j["last_processed"] =
+      last_sequence_ ? nlohmann::json{{"sequence", *last_sequence_}, {"genus", last_genus_}}
+                     : nlohmann::json(nullptr);
+  j["uptime_s"] =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - started_).count();
+  return j;
+}
+
+std::string RunStats::prometheus_text() const {
+  std::lock_guard lock(mutex_);
+  std::ostringstream out;
+  out << "# HELP sonomesh_volumes_total Volumes by journal status (one per sequence number).\n"
+      << "# TYPE sonomesh_volumes_total counter\n";
+  for (JournalStatus s : kStatuses) {
+    const auto it = counters_.find(s);
+    out << "sonomesh_volumes_total{status=\"" << to_string(s) << "\"} "
+        << (it == counters_.end() ? 0 : it->second) << "\n";
+  }
+
+  out << "# HELP sonomesh_latency_seconds Received-to-mesh-written latency over the last "
+      << kLatencyWindow << " meshes.\n"
+      << "# TYPE sonomesh_latency_seconds summary\n";
+  if (!recent_latency_ms_.empty()) {
+    std::vector<double> v(recent_latency_ms_.begin(), recent_latency_ms_.end());
+    for (double q : {0.5, 0.95, 0.99}) {
+      out << "sonomesh_latency_seconds{quantile=\"" << prom_number(q) << "\"} "
+          << prom_number(quantile_of(v, q) / 1000.0) << "\n";
+    }
+  }
+  out << "sonomesh_latency_seconds_sum " << prom_number(latency_sum_s_) << "\n"
+      << "sonomesh_latency_seconds_count " << latency_count_ << "\n";
+
+  out << "# HELP sonomesh_latency_histogram_seconds Received-to-mesh-written latency.\n"
+      << "# TYPE sonomesh_latency_histogram_seconds histogram\n";
+  for (std::size_t i = 0; i < kLatencyBuckets.size(); ++i) {
+    out << "sonomesh_latency_histogram_seconds_bucket{le=\"" << prom_number(kLatencyBuckets[i])
+        << "\"} " << bucket_counts_[i] << "\n";
+  }
+  out << "sonomesh_latency_histogram_seconds_bucket{le=\"+Inf\"} " << latency_count_ << "\n"
+      << "sonomesh_latency_histogram_seconds_sum " << prom_number(latency_sum_s_) << "\n"
+      << "sonomesh_latency_histogram_seconds_count " << latency_count_ << "\n";
+
+  out << "# HELP sonomesh_stage_seconds_total Time spent per pipeline stage.\n"
+      << "# TYPE sonomesh_stage_seconds_total counter\n";
+  for (const auto& [stage, ms] : stage_sum_ms_) {
+    out << "sonomesh_stage_seconds_total{stage=\"" << stage << "\"} " << prom_number(ms / 1000.0)
+        << "\n";
+  }
+
+  out << "# HELP sonomesh_queue_depth Volumes waiting for the worker.\n"
+      << "# TYPE sonomesh_queue_depth gauge\n"
+      << "sonomesh_queue_depth " << queue_depth_ << "\n"
+      << "# HELP sonomesh_queue_capacity Capacity of the queue.\n"
+      << "# TYPE sonomesh_queue_capacity gauge\n"
+      << "sonomesh_queue_capacity " << queue_capacity_ << "\n"
+      << "# HELP sonomesh_source_connected 1 while the probe source is connected.\n"
+      << "# TYPE sonomesh_source_connected gauge\n"
+      << "sonomesh_source_connected " << (source_state_ == SourceState::Connected ? 1 : 0) << "\n"
+      << "# HELP sonomesh_source_outages_total Times the source was lost.\n"
+      << "# TYPE sonomesh_source_outages_total counter\n"
+      << "sonomesh_source_outages_total " << outages_ << "\n"
+      << "# HELP sonomesh_uptime_seconds Seconds since the daemon started.\n"
+      << "# TYPE sonomesh_uptime_seconds gauge\n"
+      << "sonomesh_uptime_seconds "
+      << prom_number(std::chrono::duration<double>(std::chrono::steady_clock::now() - started_)
+                         .count())
+      << "\n";
+  return out.str();
+}
+
+}  // namespace sonomesh::daemon

@@ -1,0 +1,221 @@
+// `sonomeshd run`: the daemon. Configuration, signals and HTTP here; the threads in LiveRunner.
+#include <pthread.h>
+#include <signal.h>
+
+#include <atomic>
+#include <cstdio>
+#include <iostream>
+#include <memory>
+#include <thread>
+
+#include <spdlog/sinks/stdout_color_sinks.h>
+#include <spdlog/spdlog.h>
+
+#include "daemon/commands.h"
+#include "daemon/internal/http_status.h"
+#include "daemon/internal/live_runner.h"
+#include "daemon/internal/run_config.h"
+#include "daemon/internal/run_sources.h"
+
+namespace sonomesh::daemon {
+
+namespace {
+
+struct RunFlags {
+  std::string source;
+  std::string out;
+  std::string config_file;
+  std::string seed_text;
+  std::string http;
+  bool allow_remote_http = false;
+  bool print_config = false;
+  std::size_t queue_capacity = 0;
+  std::string log_level;
+  double rate_hz = 0;
+  std::string record;
+  std::uint64_t keep_meshes = 0;
+  // Which were given (flags override the file only when given).
+  CLI::Option* o_source = nullptr;
+  CLI::Option* o_out = nullptr;
+  CLI::Option* o_seed = nullptr;
+  CLI::Option* o_http = nullptr;
+  CLI::Option* o_allow_remote = nullptr;
+  CLI::Option* o_queue = nullptr;
+  CLI::Option* o_log = nullptr;
+  CLI::Option* o_rate = nullptr;
+  CLI::Option* o_record = nullptr;
+  CLI::Option* o_keep = nullptr;
+};
+
+// Defaults, then the file, then the flags. Returns an error line.
+std::optional<std::string> effective_config(const RunFlags& f, RunConfig& config) {
+  config = RunConfig{};
+  if (!f.config_file.empty()) {
+    if (auto err = load_config_file(f.config_file, config)) return err;
+  }
+  if (f.o_source->count()) config.source = f.source;
+  if (f.o_out->count()) config.out = f.out;
+  if (f.o_seed->count()) {
+    const auto seed = parse_seed_text(f.seed_text);
+    if (!seed) return "--seed-mm: want X,Y,Z in mm, got '" + f.seed_text + "'";
+    config.seed_mm = *seed;
+  }
+  if (f.o_http->count()) {
+    config.http_address = f.http;
+    config.http_explicit = true;
+  }
+  if (f.o_allow_remote->count()) config.allow_remote_http = f.allow_remote_http;
+  if (f.o_queue->count()) config.queue_capacity = f.queue_capacity;
+  if (f.o_log->count()) config.log_level = f.log_level;
+  if (f.o_rate->count()) config.rate_hz = f.rate_hz;
+  if (f.o_record->count()) config.record_path = f.record;
+  if (f.o_keep->count()) config.keep_meshes = f.keep_meshes;
+  // The daemon needs the labels: seed tracking uses the deepest point inside the last result.
+  config.pipeline.want_labels = true;
+  return validate(config);
+}
+
+void setup_logging(const std::string& level) {
+  auto logger = spdlog::stderr_color_mt("sonomeshd");
+  logger->set_pattern("%Y-%m-%d %H:%M:%S.%e %^%l%$ %v");
+  spdlog::set_default_logger(logger);
+  spdlog::set_level(spdlog::level::from_str(level));
+  spdlog::flush_on(spdlog::level::info);
+}
+
+int run_daemon(const RunFlags& flags) {
+  RunConfig config;
+  if (auto err = effective_config(flags, config)) {
+    std::fprintf(stderr, "sonomeshd run: %s\n", err->c_str());
+    return 2;
+  }
+  if (flags.print_config) {
+    std::cout << to_toml(config);
+    return 0;
+  }
+  if (!spdlog::get("sonomeshd")) setup_logging(config.log_level);
+
+  // Signals are taken synchronously by one thread (sigtimedwait): block them before any thread
+  // starts so that every thread inherits the mask and none is interrupted in the middle of I/O.
+  sigset_t signals;
+  sigemptyset(&signals);
+  sigaddset(&signals, SIGINT);
+  sigaddset(&signals, SIGTERM);
+  sigaddset(&signals, SIGHUP);
+  pthread_sigmask(SIG_BLOCK, &signals, nullptr);
+  ::signal(SIGPIPE, SIG_IGN);  // a client closing its socket is not a reason to die
+
+  register_volume_file_reader();
+  OpenedSource opened = open_run_source(config);
+  if (opened.fatal_error) {
+    std::fprintf(stderr, "sonomeshd run: %s\n", opened.fatal_error->c_str());
+    return 1;
+  }
+
+  std::unique_ptr<LiveRunner> runner;
+  try {
+    runner = std::make_unique<LiveRunner>(config, std::move(opened.source),
+                                          std::move(opened.factory), opened.live,
+                                          opened.phantom_seed_mm);
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "sonomeshd run: %s\n", e.what());
+    return 1;
+  }
+
+  std::unique_ptr<HttpStatusServer> http;
+  if (config.http_address != "off") {
+    const HttpAddress address = *parse_http_address(config.http_address);
+    http = std::make_unique<HttpStatusServer>(
+        runner->stats(), config.out / "latest.ply",
+        [&runner](const std::array<float, 3>& seed) { return runner->set_seed(seed); });
+    try {
+      const int port = http->start(address);
+      spdlog::info("HTTP status on http://{}:{}/status", address.host, port);
+      runner->event("http_listening", {{"host", address.host}, {"port", port}});
+    } catch (const std::exception& e) {
+      http.reset();
+      if (config.http_explicit) {
+        std::fprintf(stderr, "sonomeshd run: %s\n", e.what());
+        return 1;
+      }
+      spdlog::warn("{}; running without the HTTP status server", e.what());
+    }
+  }
+
+  spdlog::info("sonomeshd run: source {} ({}), out {}", config.source,
+               opened.live ? "live: newest volume wins" : "replay: every volume", config.out.string());
+  std::atomic<bool> done{false};
+  std::thread signal_thread([&] {
+    while (!done) {
+      timespec timeout{0, 200 * 1000 * 1000};
+      const int sig = sigtimedwait(&signals, nullptr, &timeout);
+      if (sig == SIGINT || sig == SIGTERM) {
+        spdlog::info("{}: stopping after the volume in hand (again to abort it)",
+                     sig == SIGINT ? "SIGINT" : "SIGTERM");
+        runner->event("signal", {{"signal", sig == SIGINT ? "SIGINT" : "SIGTERM"}});
+        runner->request_stop();
+      } else if (sig == SIGHUP) {
+        if (flags.config_file.empty()) {
+          spdlog::info("SIGHUP: no --config file to reload");
+          continue;
+        }
+        RunConfig next;
+        if (auto err = effective_config(flags, next)) {
+          spdlog::error("SIGHUP: keeping the running configuration: {}", *err);
+          runner->event("config_reload_failed", {{"error", *err}});
+        } else {
+          runner->reload(next);
+        }
+      }
+    }
+  });
+  const int rc = runner->run();
+  done = true;
+  signal_thread.join();
+  if (http) http->stop();
+  spdlog::info("journal: {}", (config.out / "journal.jsonl").string());
+  return rc;
+}
+
+}  // namespace
+
+void add_run_command(CLI::App& app, int& exit_code) {
+  auto flags = std::make_shared<RunFlags>();
+  CLI::App* cmd = app.add_subcommand(
+      "run", "Run as a daemon: volumes from a probe source -> meshes, journal, HTTP status");
+  flags->o_source = cmd->add_option("--source", flags->source,
+                                    "sim:PHANTOM[?rate=HZ&size=N], replay:PATH, unix:PATH, "
+                                    "tcp:HOST:PORT, usb:VID:PID[/SERIAL], v4l2:/dev/videoN");
+  flags->o_out = cmd->add_option("--out", flags->out, "Output directory (journal, meshes, reports)");
+  cmd->add_option("--config", flags->config_file, "TOML configuration file (SIGHUP reloads it)")
+      ->check(CLI::ExistingFile);
+  flags->o_seed = cmd->add_option("--seed-mm", flags->seed_text,
+                                  "Seed X,Y,Z in mm (else the phantom's / the volume centre)");
+  flags->o_http = cmd->add_option("--http", flags->http,
+                                  std::string("HTTP status address HOST:PORT or 'off' (default ") +
+                                      kDefaultHttpAddress + ")");
+  flags->o_allow_remote = cmd->add_flag("--allow-remote-http", flags->allow_remote_http,
+                                        "Allow a non-loopback HTTP address");
+  cmd->add_flag("--print-config", flags->print_config,
+                "Print the effective configuration as TOML and exit");
+  flags->o_queue = cmd->add_option("--queue-capacity", flags->queue_capacity,
+                                   "Volumes waiting for the worker (default 2)");
+  flags->o_log = cmd->add_option("--log-level", flags->log_level,
+                                 "trace, debug, info, warn, error (default info)");
+  flags->o_rate = cmd->add_option("--rate", flags->rate_hz,
+                                  "Replay pacing in volumes/s (0: recorded timing)");
+  flags->o_record = cmd->add_option("--record", flags->record,
+                                    "Also record every good volume to this .usv file");
+  flags->o_keep = cmd->add_option("--keep-meshes", flags->keep_meshes,
+                                  "Keep only the newest N meshes and reports (0: all)");
+  cmd->callback([flags, &exit_code] {
+    try {
+      exit_code = run_daemon(*flags);
+    } catch (const std::exception& e) {
+      std::fprintf(stderr, "sonomeshd run: %s\n", e.what());
+      exit_code = 1;
+    }
+  });
+}
+
+}  // namespace sonomesh::daemon

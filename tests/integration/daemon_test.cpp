@@ -1,0 +1,490 @@
+// `sonomeshd run` end to end: child processes (probe-sim serve, sonomeshd run) over unix sockets,
+// the journal read back and checked for "every sequence exactly once", meshes read back for their
+// genus, faults, backpressure, signals and the HTTP endpoints.
+#include <gtest/gtest.h>
+#include <signal.h>
+#include <spawn.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <filesystem>
+#include <fstream>
+#include <functional>
+#include <map>
+#include <set>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+
+#include "daemon/internal/atomic_file.h"
+#include "daemon/internal/run_config.h"
+#include "prometheus_parse.h"
+#include "reconstruct/reconstruct.h"
+
+// Last: <httplib.h> pulls in <resolv.h>, whose `_res` macro breaks Eigen headers included after it.
+#include <httplib.h>
+
+extern char** environ;
+
+namespace fs = std::filesystem;
+using namespace std::chrono_literals;
+using Clock = std::chrono::steady_clock;
+
+namespace {
+
+fs::path fresh_dir(const std::string& name) {
+  // Short: unix socket paths are limited to 107 bytes.
+  const fs::path dir = fs::path("/tmp") / ("smi_" + name + "_" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  return dir;
+}
+
+// A child process with stdout/stderr in files; killed (SIGKILL) if still running at destruction.
+class Child {
+ public:
+  Child(const std::vector<std::string>& argv, const fs::path& log_prefix) {
+    posix_spawn_file_actions_t actions;
+    posix_spawn_file_actions_init(&actions);
+    const std::string out = log_prefix.string() + ".out", err = log_prefix.string() + ".err";
+    posix_spawn_file_actions_addopen(&actions, 1, out.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+    posix_spawn_file_actions_addopen(&actions, 2, err.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+    std::vector<char*> args;
+    for (const auto& a : argv) args.push_back(const_cast<char*>(a.c_str()));
+    args.push_back(nullptr);
+    // The test runner may have signals blocked or ignored; the child must start with defaults.
+    posix_spawnattr_t attr;
+    posix_spawnattr_init(&attr);
+    sigset_t none, all;
+    sigemptyset(&none);
+    sigfillset(&all);
+    posix_spawnattr_setsigmask(&attr, &none);
+    posix_spawnattr_setsigdefault(&attr, &all);
+    posix_spawnattr_setflags(&attr, POSIX_SPAWN_SETSIGMASK | POSIX_SPAWN_SETSIGDEF);
+    const int rc = posix_spawn(&pid_, args[0], &actions, &attr, args.data(), environ);
+    posix_spawn_file_actions_destroy(&actions);
+    posix_spawnattr_destroy(&attr);
+    if (rc != 0) pid_ = -1;
+    err_path_ = err;
+  }
+  ~Child() {
+    if (pid_ > 0 && !exited_) {
+      ::kill(pid_, SIGKILL);
+      int status;
+      ::waitpid(pid_, &status, 0);
+    }
+  }
+  pid_t pid() const { return pid_; }
+  void signal(int sig) { ::kill(pid_, sig); }
+  // Exit code, or -signal, or nullopt if still running after `timeout`.
+  std::optional<int> wait(std::chrono::milliseconds timeout) {
+    if (exited_) return code_;
+    const auto deadline = Clock::now() + timeout;
+    while (true) {
+      int status = 0;
+      const pid_t r = ::waitpid(pid_, &status, WNOHANG);
+      if (r == pid_) {
+        exited_ = true;
+        code_ = WIFEXITED(status) ? WEXITSTATUS(status) : -WTERMSIG(status);
+        return code_;
+      }
+      if (Clock::now() > deadline) return std::nullopt;
+      std::this_thread::sleep_for(20ms);
+    }
+  }
+  bool running() {
+    if (exited_) return false;
+    return !wait(0ms).has_value();
+  }
+  std::string stderr_text() const {
+    std::ifstream in(err_path_);
+    return std::string((std::istreambuf_iterator<char>(in)), {});
+  }
+  // Resident set size in kB from /proc (0 if gone).
+  long rss_kb() const {
+    std::ifstream in("/proc/" + std::to_string(pid_) + "/status");
+    std::string line;
+    while (std::getline(in, line)) {
+      if (line.rfind("VmRSS:", 0) == 0) return std::stol(line.substr(6));
+    }
+    return 0;
+  }
+
+ private:
+  pid_t pid_ = -1;
+  bool exited_ = false;
+  int code_ = 0;
+  std::string err_path_;
+};
+
+std::vector<nlohmann::json> read_jsonl(const fs::path& path) {
+  std::vector<nlohmann::json> lines;
+  std::ifstream in(path);
+  std::string line;
+  while (std::getline(in, line)) {
+    if (!line.empty()) lines.push_back(nlohmann::json::parse(line));
+  }
+  return lines;
+}
+
+bool wait_until(const std::function<bool()>& ready, std::chrono::milliseconds timeout) {
+  const auto deadline = Clock::now() + timeout;
+  while (Clock::now() < deadline) {
+    if (ready()) return true;
+    std::this_thread::sleep_for(20ms);
+  }
+  return ready();
+}
+
+// Journal checks shared by every test: one line per sequence number, no sequence twice, the
+// fields the design asks for. Returns sequence -> line.
+std::map<std::uint64_t, nlohmann::json> check_journal(const fs::path& out) {
+  std::map<std::uint64_t, nlohmann::json> by_seq;
+  static const std::set<std::string> kStatuses{"processed", "skipped", "failed", "rejected",
+                                               "lost"};
+  for (const auto& line : read_jsonl(out / "journal.jsonl")) {
+    EXPECT_TRUE(line.contains("time")) << line.dump();
+    const std::string status = line.value("status", "");
+    EXPECT_TRUE(kStatuses.count(status)) << line.dump();
+    if (status != "processed") {
+      EXPECT_TRUE(line.contains("reason")) << line.dump();
+    }
+    if (line["sequence"].is_null()) {
+      EXPECT_EQ(status, "rejected") << line.dump();
+      continue;
+    }
+    const auto seq = line["sequence"].get<std::uint64_t>();
+    EXPECT_FALSE(by_seq.count(seq)) << "sequence " << seq << " twice: " << line.dump();
+    by_seq[seq] = line;
+    if (status == "processed") {
+      EXPECT_TRUE(line.contains("mesh")) << line.dump();
+      EXPECT_TRUE(line.contains("genus")) << line.dump();
+      EXPECT_TRUE(line.contains("timings_ms")) << line.dump();
+      EXPECT_TRUE(fs::exists(out / line["mesh"].get<std::string>())) << line.dump();
+    }
+  }
+  return by_seq;
+}
+
+void expect_contiguous(const std::map<std::uint64_t, nlohmann::json>& by_seq, std::uint64_t first,
+                       std::uint64_t last) {
+  for (std::uint64_t s = first; s <= last; ++s) {
+    EXPECT_TRUE(by_seq.count(s)) << "sequence " << s << " has no journal line";
+  }
+  if (!by_seq.empty()) {
+    EXPECT_EQ(by_seq.begin()->first, first);
+    EXPECT_EQ(by_seq.rbegin()->first, last);
+  }
+}
+
+void expect_no_temporaries(const fs::path& out) {
+  for (const auto& e : fs::recursive_directory_iterator(out)) {
+    EXPECT_FALSE(sonomesh::daemon::is_temporary_name(e.path())) << "left behind: " << e.path();
+  }
+}
+
+int genus_of_ply(const fs::path& path) {
+  const auto read = sonomesh::reconstruct::read_ply(path);
+  if (!read) return -100;
+  const auto topo = sonomesh::reconstruct::analyze_topology(read.mesh);
+  if (!topo.watertight) return -101;
+  return topo.genus;
+}
+
+int count_status(const std::map<std::uint64_t, nlohmann::json>& by_seq, const std::string& s) {
+  int n = 0;
+  for (const auto& [seq, line] : by_seq) n += line["status"] == s;
+  return n;
+}
+
+std::vector<nlohmann::json> events_of(const fs::path& out, const std::string& kind) {
+  std::vector<nlohmann::json> found;
+  for (const auto& e : read_jsonl(out / "events.jsonl")) {
+    if (e.value("event", "") == kind) found.push_back(e);
+  }
+  return found;
+}
+
+std::unique_ptr<Child> start_probe(const fs::path& dir, const std::vector<std::string>& extra) {
+  std::vector<std::string> argv{PROBE_SIM_EXE, "serve", "--listen",
+                                "unix:" + (dir / "probe.sock").string()};
+  argv.insert(argv.end(), extra.begin(), extra.end());
+  auto child = std::make_unique<Child>(argv, dir / "probe");
+  EXPECT_TRUE(wait_until([&] { return fs::exists(dir / "probe.sock"); }, 5000ms))
+      << child->stderr_text();
+  return child;
+}
+
+std::unique_ptr<Child> start_daemon(const fs::path& dir, const std::string& source,
+                                    const std::vector<std::string>& extra = {}) {
+  std::vector<std::string> argv{SONOMESHD_EXE, "run",       "--source", source,
+                                "--out",       (dir / "out").string(), "--http", "off"};
+  argv.insert(argv.end(), extra.begin(), extra.end());
+  return std::make_unique<Child>(argv, dir / "daemon");
+}
+
+}  // namespace
+
+// ---------------------------------------------------------------------------------------------
+
+TEST(DaemonRun, SocketStreamEverySequenceOnceWithThePhantomsGenus) {
+  const fs::path dir = fresh_dir("stream");
+  auto probe = start_probe(dir, {"--phantom", "torus", "--size", "48", "--rate", "4", "--count",
+                                 "6"});
+  auto daemon = start_daemon(dir, "unix:" + (dir / "probe.sock").string());
+  const auto code = daemon->wait(30000ms);  // end of stream: drain and exit
+  ASSERT_TRUE(code.has_value()) << "daemon did not exit at end of stream";
+  EXPECT_EQ(*code, 0) << daemon->stderr_text();
+  const fs::path out = dir / "out";
+  const auto by_seq = check_journal(out);
+  expect_contiguous(by_seq, 0, 5);
+  const int processed = count_status(by_seq, "processed");
+  EXPECT_GE(processed, 4) << daemon->stderr_text();  // 4 Hz at 48³ leaves room for every volume
+  for (const auto& [seq, line] : by_seq) {
+    if (line["status"] != "processed") continue;
+    EXPECT_EQ(line["genus"], 1) << line.dump();
+    EXPECT_EQ(genus_of_ply(out / line["mesh"].get<std::string>()), 1) << line.dump();
+    EXPECT_TRUE(fs::exists(out / line["report"].get<std::string>()));
+  }
+  EXPECT_EQ(genus_of_ply(out / "latest.ply"), 1);
+  EXPECT_EQ(events_of(out, "end_of_stream").size(), 1u);
+  expect_no_temporaries(out);
+  probe->wait(5000ms);
+}
+
+TEST(DaemonRun, FaultsAreAccountedForAndTheDaemonReconnects) {
+  const fs::path dir = fresh_dir("faults");
+  auto probe = start_probe(dir, {"--phantom", "sphere", "--size", "48", "--rate", "20", "--count",
+                                 "40", "--corrupt-every", "6", "--drop-every", "7",
+                                 "--truncate-every", "17", "--disconnect-every", "13",
+                                 "--down-ms", "300"});
+  auto daemon = start_daemon(dir, "unix:" + (dir / "probe.sock").string());
+  const auto code = daemon->wait(40000ms);
+  ASSERT_TRUE(code.has_value()) << "daemon did not exit at end of stream";
+  EXPECT_EQ(*code, 0) << daemon->stderr_text();
+  const fs::path out = dir / "out";
+  const auto by_seq = check_journal(out);
+  expect_contiguous(by_seq, 0, 39);
+  EXPECT_GE(count_status(by_seq, "lost"), 1);       // dropped records are a gap
+  EXPECT_GE(count_status(by_seq, "rejected"), 1);   // corrupted payloads / truncated records
+  EXPECT_GE(count_status(by_seq, "processed"), 5);
+  EXPECT_GE(events_of(out, "source_lost").size(), 1u);
+  EXPECT_GE(events_of(out, "source_reconnected").size(), 1u);
+  expect_no_temporaries(out);
+  probe->wait(5000ms);
+}
+
+TEST(DaemonRun, FastSourceIsSkippedNotQueuedAndMemoryStaysFlat) {
+  const fs::path dir = fresh_dir("backpressure");
+  // 60 volumes/s for 2.5 s: far faster than one worker at 48³.
+  auto probe = start_probe(dir, {"--phantom", "sphere", "--size", "48", "--rate", "60", "--count",
+                                 "150"});
+  auto daemon = start_daemon(dir, "unix:" + (dir / "probe.sock").string());
+  const fs::path out = dir / "out";
+  long rss_early = 0, rss_peak = 0;
+  const auto deadline = Clock::now() + 30s;
+  while (daemon->running() && Clock::now() < deadline) {
+    const long rss = daemon->rss_kb();
+    if (rss_early == 0 && fs::exists(out / "latest.ply")) rss_early = rss;
+    rss_peak = std::max(rss_peak, rss);
+    std::this_thread::sleep_for(50ms);
+  }
+  const auto code = daemon->wait(30000ms);
+  ASSERT_TRUE(code.has_value());
+  EXPECT_EQ(*code, 0) << daemon->stderr_text();
+  const auto by_seq = check_journal(out);
+  expect_contiguous(by_seq, 0, 149);
+  int skipped = 0;
+  double max_latency_ms = 0;
+  for (const auto& [seq, line] : by_seq) {
+    if (line["status"] == "skipped") {
+      ++skipped;
+      EXPECT_EQ(line["reason"], "superseded") << line.dump();
+    }
+    if (line["status"] == "processed") {
+      max_latency_ms = std::max(max_latency_ms, line["latency_ms"].get<double>());
+    }
+  }
+  EXPECT_GT(skipped, 20);
+  EXPECT_GE(count_status(by_seq, "processed"), 3);
+  // Bounded: at most the queue (2) plus the volume in hand ahead of any volume, not the backlog.
+  double worst_total_ms = 0;
+  for (const auto& [seq, line] : by_seq) {
+    if (line["status"] == "processed") {
+      worst_total_ms = std::max(worst_total_ms, line["timings_ms"]["total"].get<double>());
+    }
+  }
+  EXPECT_LT(max_latency_ms, 4 * worst_total_ms + 500) << "latency grew with the backlog";
+  ASSERT_GT(rss_early, 0);
+  EXPECT_LT(rss_peak - rss_early, 64 * 1024) << "RSS grew from " << rss_early << " kB to "
+                                              << rss_peak << " kB";
+  expect_no_temporaries(out);
+}
+
+TEST(DaemonRun, SigtermInTheMiddleFinishesTheVolumeAndAccountsForEverything) {
+  const fs::path dir = fresh_dir("sigterm");
+  auto probe = start_probe(dir, {"--phantom", "cyst-needle", "--size", "64", "--rate", "15"});
+  auto daemon = start_daemon(dir, "unix:" + (dir / "probe.sock").string());
+  const fs::path out = dir / "out";
+  ASSERT_TRUE(wait_until(
+      [&] {
+        for (const auto& l : read_jsonl(out / "journal.jsonl")) {
+          if (l["status"] == "processed") return true;
+        }
+        return false;
+      },
+      20000ms))
+      << daemon->stderr_text();
+  std::this_thread::sleep_for(150ms);  // most likely in the middle of the next volume
+  daemon->signal(SIGTERM);
+  const auto code = daemon->wait(15000ms);
+  ASSERT_TRUE(code.has_value()) << "no exit after SIGTERM";
+  EXPECT_EQ(*code, 0) << daemon->stderr_text();
+  const auto by_seq = check_journal(out);
+  ASSERT_FALSE(by_seq.empty());
+  expect_contiguous(by_seq, 0, by_seq.rbegin()->first);
+  for (const auto& [seq, line] : by_seq) {
+    if (line["status"] == "processed") {
+      EXPECT_GE(genus_of_ply(out / line["mesh"].get<std::string>()), 0) << line.dump();
+    }
+    if (line["status"] == "skipped") {
+      EXPECT_TRUE(line["reason"] == "shutdown" || line["reason"] == "superseded") << line.dump();
+    }
+  }
+  EXPECT_EQ(events_of(out, "stopped").size(), 1u);
+  expect_no_temporaries(out);
+  probe->signal(SIGTERM);
+  probe->wait(5000ms);
+}
+
+TEST(DaemonRun, HttpEndpointsAnswerWithValidJsonAndPrometheusText) {
+  const fs::path dir = fresh_dir("http");
+  const fs::path config = dir / "sonomeshd.toml";
+  std::ofstream(config) << "[daemon]\nqueue_capacity = 2\n[http]\naddress = \"127.0.0.1:0\"\n";
+  std::vector<std::string> argv{SONOMESHD_EXE, "run", "--source", "sim:sphere?rate=5&size=48",
+                                "--out", (dir / "out").string(), "--config", config.string()};
+  Child daemon(argv, dir / "daemon");
+  const fs::path out = dir / "out";
+  ASSERT_TRUE(wait_until([&] { return !events_of(out, "http_listening").empty(); }, 10000ms))
+      << daemon.stderr_text();
+  const int port = events_of(out, "http_listening")[0]["port"].get<int>();
+  httplib::Client client("127.0.0.1", port);
+  client.set_read_timeout(5, 0);
+  auto health = client.Get("/healthz");
+  ASSERT_TRUE(health);
+  EXPECT_EQ(health->status, 200);
+  ASSERT_TRUE(wait_until([&] { return fs::exists(out / "latest.ply"); }, 15000ms));
+  std::this_thread::sleep_for(300ms);
+
+  auto status = client.Get("/status");
+  ASSERT_TRUE(status);
+  ASSERT_EQ(status->status, 200);
+  const auto j = nlohmann::json::parse(status->body);  // throws (fails the test) if invalid
+  EXPECT_GE(j["volumes"]["processed"].get<int>(), 1);
+  for (const char* s : {"skipped", "failed", "rejected", "lost"}) EXPECT_TRUE(j["volumes"].contains(s));
+  EXPECT_TRUE(j["latency_ms"]["p50"].is_number());
+  EXPECT_TRUE(j["latency_ms"]["p95"].is_number());
+  EXPECT_EQ(j["source"]["state"], "connected");
+  EXPECT_TRUE(j.contains("last_error"));
+  EXPECT_EQ(j["seed"]["mm"].size(), 3u);
+
+  auto metrics = client.Get("/metrics");
+  ASSERT_TRUE(metrics);
+  const auto prom = sonomesh::testing::parse_prometheus(metrics->body);
+  ASSERT_TRUE(prom.error.empty()) << prom.error << "\n" << metrics->body;
+  EXPECT_GE(*prom.value("sonomesh_volumes_total", {{"status", "processed"}}), 1.0);
+  EXPECT_EQ(prom.value("sonomesh_source_connected"), 1.0);
+  EXPECT_TRUE(prom.value("sonomesh_queue_depth").has_value());
+  EXPECT_GE(*prom.value("sonomesh_latency_histogram_seconds_count"), 1.0);
+
+  auto latest = client.Get("/latest.ply");
+  ASSERT_TRUE(latest);
+  ASSERT_EQ(latest->status, 200);
+  std::ofstream(dir / "fetched.ply", std::ios::binary) << latest->body;
+  EXPECT_EQ(genus_of_ply(dir / "fetched.ply"), 0);
+
+  EXPECT_EQ(client.Post("/seed", "1,2", "text/plain")->status, 400);
+  const auto seed = j["seed"]["mm"];
+  const std::string body = "{\"seed_mm\":" + seed.dump() + "}";
+  EXPECT_EQ(client.Post("/seed", body, "application/json")->status, 200);
+  EXPECT_EQ(events_of(out, "seed_set").size(), 1u);
+
+  // SIGHUP reloads the file.
+  std::ofstream(config) << "[daemon]\nqueue_capacity = 1\n[http]\naddress = \"127.0.0.1:0\"\n";
+  daemon.signal(SIGHUP);
+  EXPECT_TRUE(wait_until([&] { return !events_of(out, "config_reloaded").empty(); }, 5000ms));
+  EXPECT_TRUE(wait_until(
+      [&] {
+        auto s = client.Get("/status");
+        return s && nlohmann::json::parse(s->body)["queue"]["capacity"] == 1;
+      },
+      5000ms));
+
+  daemon.signal(SIGINT);
+  const auto code = daemon.wait(15000ms);
+  ASSERT_TRUE(code.has_value());
+  EXPECT_EQ(*code, 0) << daemon.stderr_text();
+  const auto by_seq = check_journal(out);
+  ASSERT_FALSE(by_seq.empty());
+  expect_contiguous(by_seq, 0, by_seq.rbegin()->first);
+  expect_no_temporaries(out);
+}
+
+TEST(DaemonRun, DirectoryReplayProcessesEveryVolume) {
+  const fs::path dir = fresh_dir("replay");
+  fs::create_directories(dir / "volumes");
+  for (int i = 0; i < 3; ++i) {
+    Child gen({PROBE_SIM_EXE, "generate", "--phantom", "sphere", "--size", "48", "--seed",
+               std::to_string(i + 1), "--out", (dir / "volumes" / ("v" + std::to_string(i) + ".nrrd")).string(),
+               "--truth", (dir / ("t" + std::to_string(i) + ".nrrd")).string()},
+              dir / ("gen" + std::to_string(i)));
+    ASSERT_EQ(gen.wait(30000ms), 0) << gen.stderr_text();
+  }
+  // Replay is not live: the source waits for the worker, nothing is skipped.
+  auto daemon = start_daemon(dir, "replay:" + (dir / "volumes").string(),
+                             {"--seed-mm", "nan"});
+  ASSERT_EQ(daemon->wait(10000ms), 2) << "a bad --seed-mm must be refused";
+  daemon = start_daemon(dir, "replay:" + (dir / "volumes").string(), {"--queue-capacity", "1"});
+  const auto code = daemon->wait(30000ms);
+  ASSERT_TRUE(code.has_value());
+  EXPECT_EQ(*code, 0) << daemon->stderr_text();
+  const auto by_seq = check_journal(dir / "out");
+  expect_contiguous(by_seq, 0, 2);
+  EXPECT_EQ(count_status(by_seq, "processed"), 3) << daemon->stderr_text();
+  for (const auto& [seq, line] : by_seq) EXPECT_EQ(line["genus"], 0) << line.dump();
+}
+
+TEST(DaemonRun, PrintConfigAndArgumentErrors) {
+  const fs::path dir = fresh_dir("cli");
+  Child print({SONOMESHD_EXE, "run", "--source", "sim:torus", "--out", (dir / "o").string(),
+               "--seed-mm", "1,2,3", "--queue-capacity", "3", "--print-config"},
+              dir / "print");
+  ASSERT_EQ(print.wait(10000ms), 0) << print.stderr_text();
+  std::ifstream in(dir / "print.out");
+  const std::string text((std::istreambuf_iterator<char>(in)), {});
+  sonomesh::daemon::RunConfig back;
+  ASSERT_FALSE(sonomesh::daemon::load_config_text(text, "printed", back).has_value()) << text;
+  EXPECT_EQ(back.source, "sim:torus");
+  EXPECT_EQ(back.queue_capacity, 3u);
+  EXPECT_EQ(back.seed_mm, (std::array<float, 3>{1, 2, 3}));
+  EXPECT_FALSE(fs::exists(dir / "o"));  // --print-config does not start anything
+
+  Child remote({SONOMESHD_EXE, "run", "--source", "sim:torus", "--out", (dir / "o").string(),
+                "--http", "0.0.0.0:9999"},
+               dir / "remote");
+  ASSERT_EQ(remote.wait(10000ms), 2);
+  const std::string err = remote.stderr_text();
+  EXPECT_NE(err.find("--allow-remote-http"), std::string::npos) << err;
+  EXPECT_EQ(std::count(err.begin(), err.end(), '\n'), 1) << err;
+
+  Child bad_source({SONOMESHD_EXE, "run", "--source", "bogus:thing", "--out", (dir / "o").string(),
+                    "--http", "off"},
+                   dir / "bad");
+  const auto code = bad_source.wait(10000ms);
+  ASSERT_TRUE(code.has_value());
+  EXPECT_NE(*code, 0);
+  EXPECT_FALSE(bad_source.stderr_text().empty());
+}
