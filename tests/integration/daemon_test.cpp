@@ -2,6 +2,7 @@
 // the journal read back and checked for "every sequence exactly once", meshes read back for their
 // genus, faults, backpressure, signals and the HTTP endpoints.
 #include <gtest/gtest.h>
+#include <fcntl.h>
 #include <signal.h>
 #include <spawn.h>
 #include <sys/wait.h>
@@ -23,6 +24,7 @@
 #include "daemon/internal/run_config.h"
 #include "prometheus_parse.h"
 #include "reconstruct/reconstruct.h"
+#include "sim/sim.h"
 
 // Last: <httplib.h> pulls in <resolv.h>, whose `_res` macro breaks Eigen headers included after it.
 #include <httplib.h>
@@ -232,9 +234,18 @@ std::unique_ptr<Child> start_daemon(const fs::path& dir, const std::string& sour
 
 TEST(DaemonRun, SocketStreamEverySequenceOnceWithThePhantomsGenus) {
   const fs::path dir = fresh_dir("stream");
-  auto probe = start_probe(dir, {"--phantom", "torus", "--size", "48", "--rate", "4", "--count",
+  auto probe = start_probe(dir, {"--phantom", "torus", "--size", "64", "--rate", "4", "--count",
                                  "6"});
-  auto daemon = start_daemon(dir, "unix:" + (dir / "probe.sock").string());
+  // A socket probe has no known seed: give the phantom's (the torus' centre is in its hole, which
+  // the volume-centre fallback would hit).
+  sonomesh::sim::PhantomSpec spec;
+  spec.phantom = "torus";
+  spec.size_vox = 64;
+  const auto seed = sonomesh::sim::make_phantom(spec).seed_mm;
+  auto daemon = start_daemon(dir, "unix:" + (dir / "probe.sock").string(),
+                             {"--seed-mm", std::to_string(seed.x()) + "," +
+                                               std::to_string(seed.y()) + "," +
+                                               std::to_string(seed.z())});
   const auto code = daemon->wait(30000ms);  // end of stream: drain and exit
   ASSERT_TRUE(code.has_value()) << "daemon did not exit at end of stream";
   EXPECT_EQ(*code, 0) << daemon->stderr_text();
@@ -242,7 +253,7 @@ TEST(DaemonRun, SocketStreamEverySequenceOnceWithThePhantomsGenus) {
   const auto by_seq = check_journal(out);
   expect_contiguous(by_seq, 0, 5);
   const int processed = count_status(by_seq, "processed");
-  EXPECT_GE(processed, 4) << daemon->stderr_text();  // 4 Hz at 48³ leaves room for every volume
+  EXPECT_GE(processed, 4) << daemon->stderr_text();  // 4 Hz at 64³ leaves room for every volume
   for (const auto& [seq, line] : by_seq) {
     if (line["status"] != "processed") continue;
     EXPECT_EQ(line["genus"], 1) << line.dump();

@@ -1,0 +1,204 @@
+// daemon_bench: sonomeshd run end to end at 128³ and 10 volumes/s.
+//
+// The probe is `probe-sim serve --replay` of a recording made here first, so that generating
+// phantoms (expensive at 128³) does not steal the two cores from the daemon under test: a real
+// probe computes its volumes on its own hardware. The daemon runs as a child process exactly as
+// deployed (unix socket, journal, meshes, reports, latest.ply, fsync on every line).
+//
+// Reports: sustained throughput (processed volumes per second of stream), the fraction skipped,
+// end-to-end latency (received -> mesh written; p50/p95/max from the journal), mean stage times,
+// and the daemon's peak RSS (wait4 ru_maxrss). Targets: keep up with 10 volumes/s, p95 <= 150 ms.
+//
+//   daemon_bench [--size N] [--rate HZ] [--count N] [--phantom NAME] [--sonomeshd PATH]
+//                [--probe-sim PATH] [--work DIR] [--json FILE]
+#include <fcntl.h>
+#include <signal.h>
+#include <spawn.h>
+#include <sys/resource.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <iostream>
+#include <map>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+
+#include "acquire/protocol.h"
+#include "sim/phantom_source.h"
+#include "sim/sim.h"
+
+extern char** environ;
+namespace fs = std::filesystem;
+using Clock = std::chrono::steady_clock;
+
+namespace {
+
+struct Args {
+  int size = 128;
+  double rate = 10;
+  int count = 100;
+  std::string phantom = "cyst-needle";
+  std::string sonomeshd = SONOMESHD_EXE;
+  std::string probe_sim = PROBE_SIM_EXE;
+  std::string work = "/tmp/sonomesh_daemon_bench";
+  std::string json_out;
+};
+
+pid_t spawn(const std::vector<std::string>& argv, const fs::path& log) {
+  posix_spawn_file_actions_t actions;
+  posix_spawn_file_actions_init(&actions);
+  posix_spawn_file_actions_addopen(&actions, 1, "/dev/null", O_WRONLY, 0);
+  posix_spawn_file_actions_addopen(&actions, 2, log.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+  std::vector<char*> args;
+  for (const auto& a : argv) args.push_back(const_cast<char*>(a.c_str()));
+  args.push_back(nullptr);
+  pid_t pid = -1;
+  if (posix_spawn(&pid, args[0], &actions, nullptr, args.data(), environ) != 0) pid = -1;
+  posix_spawn_file_actions_destroy(&actions);
+  return pid;
+}
+
+double quantile(std::vector<double> v, double q) {
+  if (v.empty()) return 0;
+  std::sort(v.begin(), v.end());
+  const std::size_t i = std::min(v.size() - 1, static_cast<std::size_t>(q * (v.size() - 1) + 0.5));
+  return v[i];
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  Args a;
+  for (int i = 1; i + 1 < argc; i += 2) {
+    const std::string k = argv[i], v = argv[i + 1];
+    if (k == "--size") a.size = std::stoi(v);
+    else if (k == "--rate") a.rate = std::stod(v);
+    else if (k == "--count") a.count = std::stoi(v);
+    else if (k == "--phantom") a.phantom = v;
+    else if (k == "--sonomeshd") a.sonomeshd = v;
+    else if (k == "--probe-sim") a.probe_sim = v;
+    else if (k == "--work") a.work = v;
+    else if (k == "--json") a.json_out = v;
+    else {
+      std::fprintf(stderr, "daemon_bench: unknown option %s\n", k.c_str());
+      return 2;
+    }
+  }
+  const fs::path work = a.work;
+  fs::remove_all(work);
+  fs::create_directories(work);
+
+  // 1. The recording: a breathing phantom stream, as the simulator probe would send it.
+  sonomesh::sim::PhantomSourceOptions options;
+  options.spec.phantom = a.phantom;
+  options.spec.size_vox = a.size;
+  options.rate_hz = a.rate;
+  const fs::path recording = work / "stream.usv";
+  const auto t_rec = Clock::now();
+  {
+    std::ofstream out(recording, std::ios::binary);
+    for (int k = 0; k < a.count; ++k) {
+      const auto raw = sonomesh::sim::make_stream_volume(options, static_cast<std::uint64_t>(k));
+      const auto bytes = sonomesh::acquire::encode_volume_record(raw);
+      if (!bytes) {
+        std::fprintf(stderr, "daemon_bench: cannot encode volume %d\n", k);
+        return 1;
+      }
+      out.write(reinterpret_cast<const char*>(bytes->data()),
+                static_cast<std::streamsize>(bytes->size()));
+    }
+    const auto eos = sonomesh::acquire::encode_end_of_stream(
+        static_cast<std::uint64_t>(a.count),
+        static_cast<std::uint64_t>(a.count / a.rate * 1e9));
+    out.write(reinterpret_cast<const char*>(eos.data()), static_cast<std::streamsize>(eos.size()));
+  }
+  std::fprintf(stderr, "daemon_bench: recorded %d volumes of %d^3 in %.1f s\n", a.count, a.size,
+               std::chrono::duration<double>(Clock::now() - t_rec).count());
+  sonomesh::sim::PhantomSpec spec = options.spec;
+  const auto seed = sonomesh::sim::make_phantom(spec).seed_mm;
+
+  // 2. Probe and daemon.
+  const fs::path sock = work / "probe.sock";
+  const pid_t probe = spawn({a.probe_sim, "serve", "--replay", recording.string(), "--listen",
+                             "unix:" + sock.string(), "--rate", std::to_string(a.rate)},
+                            work / "probe.log");
+  for (int i = 0; i < 500 && !fs::exists(sock); ++i) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  }
+  char seed_text[96];
+  std::snprintf(seed_text, sizeof seed_text, "%.3f,%.3f,%.3f", seed.x(), seed.y(), seed.z());
+  const auto t0 = Clock::now();
+  const pid_t daemon = spawn({a.sonomeshd, "run", "--source", "unix:" + sock.string(), "--out",
+                              (work / "out").string(), "--http", "off", "--seed-mm", seed_text},
+                             work / "daemon.log");
+  int status = 0;
+  rusage usage{};
+  if (wait4(daemon, &status, 0, &usage) != daemon) {
+    std::perror("daemon_bench: wait4");
+    return 1;
+  }
+  const double wall_s = std::chrono::duration<double>(Clock::now() - t0).count();
+  ::kill(probe, SIGTERM);
+  waitpid(probe, nullptr, 0);
+  if (!WIFEXITED(status) || WEXITSTATUS(status) != 0) {
+    std::fprintf(stderr, "daemon_bench: sonomeshd failed (see %s)\n",
+                 (work / "daemon.log").c_str());
+    return 1;
+  }
+
+  // 3. The journal.
+  std::map<std::string, int> counts;
+  std::vector<double> latency;
+  std::map<std::string, double> stage_sum;
+  int genus_ok = 0;
+  std::ifstream in(work / "out" / "journal.jsonl");
+  std::string line;
+  while (std::getline(in, line)) {
+    const auto j = nlohmann::json::parse(line);
+    const std::string s = j["status"];
+    ++counts[s];
+    if (s != "processed") continue;
+    latency.push_back(j["latency_ms"].get<double>());
+    for (const auto& [stage, ms] : j["timings_ms"].items()) stage_sum[stage] += ms.get<double>();
+    genus_ok += j["genus"] == 1;
+  }
+  const int processed = counts["processed"];
+  const double stream_s = a.count / a.rate;
+  nlohmann::json report = {
+      {"size", a.size},
+      {"rate_hz", a.rate},
+      {"volumes", a.count},
+      {"phantom", a.phantom},
+      {"counts", counts},
+      {"processed_per_s", processed / stream_s},
+      {"kept_up_fraction", static_cast<double>(processed) / a.count},
+      {"latency_ms", {{"p50", quantile(latency, 0.5)},
+                      {"p95", quantile(latency, 0.95)},
+                      {"max", quantile(latency, 1.0)}}},
+      {"peak_rss_mb", usage.ru_maxrss / 1024.0},
+      {"cpu_s", usage.ru_utime.tv_sec + usage.ru_utime.tv_usec / 1e6 + usage.ru_stime.tv_sec +
+                    usage.ru_stime.tv_usec / 1e6},
+      {"wall_s", wall_s},
+      {"genus_1_fraction", processed ? static_cast<double>(genus_ok) / processed : 0.0}};
+  nlohmann::json stages = nlohmann::json::object();
+  for (const auto& [stage, sum] : stage_sum) stages[stage] = processed ? sum / processed : 0.0;
+  report["mean_stage_ms"] = stages;
+  std::cout << report.dump(2) << "\n";
+  std::printf("daemon_bench %d^3 at %.0f volumes/s: processed %d/%d (%.1f/s), skipped %d, "
+              "latency p50 %.0f ms p95 %.0f ms, peak RSS %.0f MB -> %s\n",
+              a.size, a.rate, processed, a.count, processed / stream_s, counts["skipped"],
+              quantile(latency, 0.5), quantile(latency, 0.95), usage.ru_maxrss / 1024.0,
+              (processed == a.count && quantile(latency, 0.95) <= 150) ? "targets met"
+                                                                       : "targets NOT met");
+  if (!a.json_out.empty()) std::ofstream(a.json_out) << report.dump(2) << "\n";
+  return 0;
+}
