@@ -72,7 +72,8 @@ std::optional<std::string> effective_config(const RunFlags& f, RunConfig& config
   if (f.o_keep->count()) config.keep_meshes = f.keep_meshes;
   // The daemon needs the labels: seed tracking uses the deepest point inside the last result.
   config.pipeline.want_labels = true;
-  return validate(config);
+  // --print-config also serves to start a configuration file: no source or output needed.
+  return validate(config, !f.print_config);
 }
 
 void setup_logging(const std::string& level) {

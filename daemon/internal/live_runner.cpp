@@ -244,6 +244,7 @@ int LiveRunner::run() {
                     {"live", live_},
                     {"queue_capacity", config_.queue_capacity},
                     {"pid", static_cast<long long>(::getpid())}});
+  if (source_) event("source_opened", {{"source", source_->describe()}});
   std::thread writer([this] { writer_loop(); });
   std::thread worker([this] { worker_loop(); });
   acquisition_loop();  // on the calling thread

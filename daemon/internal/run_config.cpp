@@ -360,9 +360,9 @@ std::string to_toml(const RunConfig& c) {
   return o.str();
 }
 
-std::optional<std::string> validate(const RunConfig& c) {
-  if (c.source.empty()) return "no source: give --source or [daemon] source";
-  if (c.out.empty()) return "no output directory: give --out or [daemon] out";
+std::optional<std::string> validate(const RunConfig& c, bool require_io) {
+  if (require_io && c.source.empty()) return "no source: give --source or [daemon] source";
+  if (require_io && c.out.empty()) return "no output directory: give --out or [daemon] out";
   if (c.queue_capacity < 1) return "queue_capacity must be at least 1";
   static const std::set<std::string> kLevels{"trace", "debug", "info", "warn", "error", "critical",
                                              "off"};

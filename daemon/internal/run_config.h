@@ -55,8 +55,9 @@ std::optional<std::string> load_config_text(const std::string& text, const std::
 /// The configuration as TOML (round-trips through load_config_text).
 std::string to_toml(const RunConfig& config);
 
-/// Checks values (ranges, required fields). Returns the first problem.
-std::optional<std::string> validate(const RunConfig& config);
+/// Checks values (ranges, and with `require_io` the source and output directory). Returns the
+/// first problem.
+std::optional<std::string> validate(const RunConfig& config, bool require_io = true);
 
 /// The acquire::SourceOptions part.
 acquire::SourceOptions source_options(const RunConfig& config);

@@ -37,13 +37,27 @@ using Clock = std::chrono::steady_clock;
 
 namespace {
 
-fs::path fresh_dir(const std::string& name) {
-  // Short: unix socket paths are limited to 107 bytes.
-  const fs::path dir = fs::path("/tmp") / ("smi_" + name + "_" + std::to_string(::getpid()));
-  fs::remove_all(dir);
-  fs::create_directories(dir);
-  return dir;
-}
+// A scratch directory, removed at the end of a test that passed (kept for inspection otherwise).
+class ScratchDir {
+ public:
+  explicit ScratchDir(const std::string& name)
+      // Short: unix socket paths are limited to 107 bytes.
+      : path_(fs::path("/tmp") / ("smi_" + name + "_" + std::to_string(::getpid()))) {
+    fs::remove_all(path_);
+    fs::create_directories(path_);
+  }
+  ~ScratchDir() {
+    if (!::testing::Test::HasFailure()) {
+      std::error_code ec;
+      fs::remove_all(path_, ec);
+    }
+  }
+  operator const fs::path&() const { return path_; }
+  fs::path operator/(const std::string& part) const { return path_ / part; }
+
+ private:
+  fs::path path_;
+};
 
 // A child process with stdout/stderr in files; killed (SIGKILL) if still running at destruction.
 class Child {
@@ -233,7 +247,7 @@ std::unique_ptr<Child> start_daemon(const fs::path& dir, const std::string& sour
 // ---------------------------------------------------------------------------------------------
 
 TEST(DaemonRun, SocketStreamEverySequenceOnceWithThePhantomsGenus) {
-  const fs::path dir = fresh_dir("stream");
+  const ScratchDir dir("stream");
   auto probe = start_probe(dir, {"--phantom", "torus", "--size", "64", "--rate", "4", "--count",
                                  "6"});
   // A socket probe has no known seed: give the phantom's (the torus' centre is in its hole, which
@@ -267,7 +281,7 @@ TEST(DaemonRun, SocketStreamEverySequenceOnceWithThePhantomsGenus) {
 }
 
 TEST(DaemonRun, FaultsAreAccountedForAndTheDaemonReconnects) {
-  const fs::path dir = fresh_dir("faults");
+  const ScratchDir dir("faults");
   auto probe = start_probe(dir, {"--phantom", "sphere", "--size", "48", "--rate", "20", "--count",
                                  "40", "--corrupt-every", "6", "--drop-every", "7",
                                  "--truncate-every", "17", "--disconnect-every", "13",
@@ -289,7 +303,7 @@ TEST(DaemonRun, FaultsAreAccountedForAndTheDaemonReconnects) {
 }
 
 TEST(DaemonRun, FastSourceIsSkippedNotQueuedAndMemoryStaysFlat) {
-  const fs::path dir = fresh_dir("backpressure");
+  const ScratchDir dir("backpressure");
   // 60 volumes/s for 2.5 s: far faster than one worker at 48³.
   auto probe = start_probe(dir, {"--phantom", "sphere", "--size", "48", "--rate", "60", "--count",
                                  "150"});
@@ -336,7 +350,7 @@ TEST(DaemonRun, FastSourceIsSkippedNotQueuedAndMemoryStaysFlat) {
 }
 
 TEST(DaemonRun, SigtermInTheMiddleFinishesTheVolumeAndAccountsForEverything) {
-  const fs::path dir = fresh_dir("sigterm");
+  const ScratchDir dir("sigterm");
   auto probe = start_probe(dir, {"--phantom", "cyst-needle", "--size", "64", "--rate", "15"});
   auto daemon = start_daemon(dir, "unix:" + (dir / "probe.sock").string());
   const fs::path out = dir / "out";
@@ -372,7 +386,7 @@ TEST(DaemonRun, SigtermInTheMiddleFinishesTheVolumeAndAccountsForEverything) {
 }
 
 TEST(DaemonRun, HttpEndpointsAnswerWithValidJsonAndPrometheusText) {
-  const fs::path dir = fresh_dir("http");
+  const ScratchDir dir("http");
   const fs::path config = dir / "sonomeshd.toml";
   std::ofstream(config) << "[daemon]\nqueue_capacity = 2\n[http]\naddress = \"127.0.0.1:0\"\n";
   std::vector<std::string> argv{SONOMESHD_EXE, "run", "--source", "sim:sphere?rate=5&size=48",
@@ -445,7 +459,7 @@ TEST(DaemonRun, HttpEndpointsAnswerWithValidJsonAndPrometheusText) {
 }
 
 TEST(DaemonRun, DirectoryReplayProcessesEveryVolume) {
-  const fs::path dir = fresh_dir("replay");
+  const ScratchDir dir("replay");
   fs::create_directories(dir / "volumes");
   for (int i = 0; i < 3; ++i) {
     Child gen({PROBE_SIM_EXE, "generate", "--phantom", "sphere", "--size", "48", "--seed",
@@ -469,7 +483,7 @@ TEST(DaemonRun, DirectoryReplayProcessesEveryVolume) {
 }
 
 TEST(DaemonRun, PrintConfigAndArgumentErrors) {
-  const fs::path dir = fresh_dir("cli");
+  const ScratchDir dir("cli");
   Child print({SONOMESHD_EXE, "run", "--source", "sim:torus", "--out", (dir / "o").string(),
                "--seed-mm", "1,2,3", "--queue-capacity", "3", "--print-config"},
               dir / "print");
