@@ -193,9 +193,7 @@ void LiveRunner::reload(const RunConfig& next) {
     std::lock_guard lock(config_mutex_);
     config_ = applied;
   }
-  for (const QueuedVolume& item : queue_->set_capacity(applied.queue_capacity)) {
-    journal_skipped(item, "superseded");
-  }
+  queue_->set_capacity(applied.queue_capacity);
   stats_.set_queue_depth(queue_->size(), applied.queue_capacity);
   if (applied.seed_mm != previous.seed_mm) {
     std::lock_guard lock(seed_mutex_);

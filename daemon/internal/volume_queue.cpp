@@ -8,15 +8,6 @@ VolumeQueue::VolumeQueue(std::size_t capacity, Mode mode) : capacity_(capacity),
   if (capacity < 1) throw std::invalid_argument("queue capacity must be at least 1");
 }
 
-std::vector<QueuedVolume> VolumeQueue::trim_locked() {
-  std::vector<QueuedVolume> out;
-  while (items_.size() > capacity_) {
-    out.push_back(std::move(items_.front()));
-    items_.pop_front();
-  }
-  return out;
-}
-
 std::vector<QueuedVolume> VolumeQueue::push(QueuedVolume volume) {
   std::unique_lock lock(mutex_);
   std::vector<QueuedVolume> out;
@@ -32,8 +23,11 @@ std::vector<QueuedVolume> VolumeQueue::push(QueuedVolume volume) {
     }
     items_.push_back(std::move(volume));
   } else {
+    while (!items_.empty()) {
+      out.push_back(std::move(items_.front()));
+      items_.pop_front();
+    }
     items_.push_back(std::move(volume));
-    out = trim_locked();
   }
   lock.unlock();
   not_empty_.notify_one();
@@ -87,16 +81,13 @@ std::size_t VolumeQueue::size() const {
   return items_.size();
 }
 
-std::vector<QueuedVolume> VolumeQueue::set_capacity(std::size_t capacity) {
+void VolumeQueue::set_capacity(std::size_t capacity) {
   if (capacity < 1) throw std::invalid_argument("queue capacity must be at least 1");
-  std::vector<QueuedVolume> out;
   {
     std::lock_guard lock(mutex_);
     capacity_ = capacity;
-    if (mode_ == Mode::KeepNewest) out = trim_locked();
   }
   not_full_.notify_all();
-  return out;
 }
 
 }  // namespace sonomesh::daemon

@@ -2,10 +2,11 @@
 /// @file
 /// @brief The bounded queue between the acquisition thread and the processing worker.
 ///
-/// Live sources keep the newest volume: when the queue is full, the oldest waiting volume is
-/// pushed out and handed back to the caller so that it can be journaled as `skipped`. A capacity
-/// of 1 therefore means "only ever the newest". Replay sources are not live: push() blocks until
-/// there is room, so nothing is skipped.
+/// Live sources keep the newest volume (DESIGN.md): a volume still waiting when a newer one
+/// arrives is pushed out and handed back to the caller so that it can be journaled as `skipped`.
+/// The worker therefore always starts on the freshest volume and the latency never includes
+/// waiting behind stale ones. Replay sources are not live: push() blocks while `capacity` volumes
+/// wait, so nothing is skipped and the source reads ahead by up to `capacity` volumes.
 
 #include <chrono>
 #include <condition_variable>
@@ -34,7 +35,7 @@ class VolumeQueue {
   /// @throws std::invalid_argument if capacity < 1.
   VolumeQueue(std::size_t capacity, Mode mode);
 
-  /// KeepNewest: never blocks; returns the volumes pushed out to make room (oldest first).
+  /// KeepNewest: never blocks; returns the older volumes it pushed out (oldest first).
   /// Block: waits for room; returns the volume itself (in the vector) if the queue was closed or
   /// aborted while waiting, so the caller can account for it.
   std::vector<QueuedVolume> push(QueuedVolume volume);
@@ -51,13 +52,10 @@ class VolumeQueue {
   std::size_t size() const;
   std::size_t capacity() const { return capacity_; }
   Mode mode() const { return mode_; }
-  /// Changes the capacity (config reload). Excess volumes are returned like push() returns them
-  /// in KeepNewest mode; in Block mode they stay until popped.
-  std::vector<QueuedVolume> set_capacity(std::size_t capacity);
+  /// Changes the capacity (config reload; Block mode). Volumes above it stay until popped.
+  void set_capacity(std::size_t capacity);
 
  private:
-  std::vector<QueuedVolume> trim_locked();
-
   mutable std::mutex mutex_;
   std::condition_variable not_empty_;
   std::condition_variable not_full_;

@@ -335,7 +335,7 @@ TEST(DaemonRun, FastSourceIsSkippedNotQueuedAndMemoryStaysFlat) {
   }
   EXPECT_GT(skipped, 20);
   EXPECT_GE(count_status(by_seq, "processed"), 3);
-  // Bounded: at most the queue (2) plus the volume in hand ahead of any volume, not the backlog.
+  // Bounded: a volume waits at most for the one in hand (newest wins), never behind a backlog.
   double worst_total_ms = 0;
   for (const auto& [seq, line] : by_seq) {
     if (line["status"] == "processed") {

@@ -58,15 +58,15 @@ std::vector<nlohmann::json> read_jsonl(const fs::path& path) {
 
 // ---------------------------------------------------------------------------------------------
 
-TEST(VolumeQueue, KeepNewestPushesOutTheOldest) {
+TEST(VolumeQueue, KeepNewestPushesOutEveryOlderVolume) {
   VolumeQueue q(2, VolumeQueue::Mode::KeepNewest);
   EXPECT_TRUE(q.push(volume_with(1)).empty());
-  EXPECT_TRUE(q.push(volume_with(2)).empty());
-  auto out = q.push(volume_with(3));
+  auto out = q.push(volume_with(2));
   ASSERT_EQ(out.size(), 1u);
   EXPECT_EQ(out[0].raw.sequence, 1u);
-  EXPECT_EQ(q.size(), 2u);
+  EXPECT_EQ(q.size(), 1u);
   EXPECT_EQ(q.pop(10ms)->raw.sequence, 2u);
+  EXPECT_TRUE(q.push(volume_with(3)).empty());  // nothing waiting: nothing skipped
   EXPECT_EQ(q.pop(10ms)->raw.sequence, 3u);
   EXPECT_FALSE(q.pop(10ms).has_value());
 }
@@ -115,14 +115,21 @@ TEST(VolumeQueue, CloseDrainsBeforeEnding) {
   EXPECT_LT(std::chrono::steady_clock::now() - t0, 500ms);  // no wait once closed and empty
 }
 
-TEST(VolumeQueue, ShrinkingCapacityReturnsTheExcess) {
-  VolumeQueue q(3, VolumeQueue::Mode::KeepNewest);
-  for (int i = 1; i <= 3; ++i) q.push(volume_with(i));
-  auto out = q.set_capacity(1);
-  ASSERT_EQ(out.size(), 2u);
-  EXPECT_EQ(out[0].raw.sequence, 1u);
-  EXPECT_EQ(q.pop(10ms)->raw.sequence, 3u);
+TEST(VolumeQueue, GrowingCapacityReleasesABlockedProducer) {
+  VolumeQueue q(1, VolumeQueue::Mode::Block);
+  q.push(volume_with(1));
+  std::atomic<bool> pushed{false};
+  std::thread producer([&] {
+    q.push(volume_with(2));
+    pushed = true;
+  });
+  std::this_thread::sleep_for(30ms);
+  EXPECT_FALSE(pushed.load());
+  q.set_capacity(2);
+  producer.join();
+  EXPECT_EQ(q.size(), 2u);
   EXPECT_THROW(VolumeQueue(0, VolumeQueue::Mode::Block), std::invalid_argument);
+  EXPECT_THROW(q.set_capacity(0), std::invalid_argument);
 }
 
 // ---------------------------------------------------------------------------------------------
