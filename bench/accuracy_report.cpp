@@ -51,10 +51,10 @@ int main(int argc, char** argv) {
     return 2;
   }
   if (header) {
-    std::printf("| phantom | size | speckle | contrast | Dice | balloon Dice | MSD (vox) | HD95 (vox) "
+    std::printf("| phantom | size | speckle | contrast | Dice | balloon Dice | result/truth volume | MSD (vox) | HD95 (vox) "
                 "| genus expected | genus found | watertight | components | total ms (median) "
                 "| balloon stops B/C/S/I |\n");
-    std::printf("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n");
+    std::printf("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n");
     return 0;
   }
   try {
@@ -69,11 +69,15 @@ int main(int argc, char** argv) {
                           {"speckle", spec.speckle},   {"contrast", spec.contrast},
                           {"genus_expected", phantom.genus}, {"ok", result.ok},
                           {"error", result.error}};
-    double dice = 0, balloon_dice = 0;
+    double dice = 0, balloon_dice = 0, volume_ratio = 0;
     daemon::internal::SurfaceDistances distances;
     if (result.ok && result.labels) {
       dice = daemon::internal::dice(*result.labels, phantom.truth);
       distances = daemon::internal::surface_distances(*result.labels, phantom.truth);
+      std::size_t found = 0, truth = 0;
+      for (std::uint8_t v : result.labels->u8()) found += v != 0;
+      for (std::uint8_t v : phantom.truth.u8()) truth += v != 0;
+      volume_ratio = truth ? static_cast<double>(found) / static_cast<double>(truth) : 0.0;
     }
     if (!result.balloon.triangles.empty())
       balloon_dice = daemon::internal::dice(
@@ -81,6 +85,7 @@ int main(int argc, char** argv) {
     const auto& s = result.stop_counts;
     row.update({{"dice", dice},
                 {"balloon_dice", balloon_dice},
+                {"volume_ratio", volume_ratio},
                 {"msd_vox", distances.mean_vox},
                 {"hd95_vox", distances.hd95_vox},
                 {"genus_found", result.topology.genus},
@@ -91,14 +96,14 @@ int main(int argc, char** argv) {
     if (format == "json") {
       std::printf("%s\n", row.dump().c_str());
     } else if (!result.ok) {
-      std::printf("| %s | %d | %.2f | %.2f | failed: %s |  |  |  | %d |  |  |  | %.1f |  |\n",
+      std::printf("| %s | %d | %.2f | %.2f | failed: %s |  |  |  |  | %d |  |  |  | %.1f |  |\n",
                   spec.phantom.c_str(), spec.size_vox, spec.speckle, spec.contrast,
                   result.error.c_str(), phantom.genus, median(totals));
     } else {
-      std::printf("| %s | %d | %.2f | %.2f | %.3f | %.3f | %.2f | %.2f | %d | %d | %s | %d | %.1f "
+      std::printf("| %s | %d | %.2f | %.2f | %.3f | %.3f | %.3f | %.2f | %.2f | %d | %d | %s | %d | %.1f "
                   "| %d/%d/%d/%d |\n",
                   spec.phantom.c_str(), spec.size_vox, spec.speckle, spec.contrast, dice,
-                  balloon_dice, distances.mean_vox, distances.hd95_vox, phantom.genus,
+                  balloon_dice, volume_ratio, distances.mean_vox, distances.hd95_vox, phantom.genus,
                   result.topology.genus, result.topology.watertight ? "yes" : "no",
                   result.topology.components, median(totals), s.boundary, s.curvature,
                   s.self_intersection, s.iteration_limit);

@@ -33,10 +33,11 @@ struct PipelineConfig {
   bool want_indicator = false; // the indicator function χ as a Float32 volume (for .vdb output)
 };
 
-/// Wall-clock time per stage in ms; `total` includes everything run_pipeline did.
+/// Wall-clock time per stage in ms; `total` includes everything run_pipeline did. `labels` is the
+/// rasterization on the input grid plus the deepest-point search (not one of the paper's stages).
 struct StageTimings {
   double smooth_ms = 0, balloon_ms = 0, opening_ms = 0, reconstruct_ms = 0, mesh_ms = 0,
-         total_ms = 0;
+         labels_ms = 0, total_ms = 0;
 };
 
 /// Counts of balloon vertices per stop reason (segment::StopReason, the balloon PLY's codes).

@@ -98,21 +98,28 @@ void require_same_grid(const Volume& a, const Volume& b) {
     throw std::invalid_argument("label volumes have different dimensions");
 }
 
-bool inside(const Volume& labels, int i, int j, int k) { return labels.value(i, j, k) > 0.0f; }
+// Label volumes are UInt8 (rasterize_labels, the simulator's truth, label files); direct access
+// keeps the full-volume scans at memory speed.
+const std::vector<std::uint8_t>& label_data(const Volume& labels) {
+  if (labels.type() != volume::VoxelType::UInt8)
+    throw std::invalid_argument("label volume must be UInt8");
+  return labels.u8();
+}
 
 // Inside voxels with a 6-neighbour outside or on the border of the volume.
 std::vector<bool> boundary_of(const Volume& labels) {
   const Vec3i d = labels.dims();
+  const auto& data = label_data(labels);
+  auto inside = [&](int i, int j, int k) { return data[labels.linear_index(i, j, k)] != 0; };
   std::vector<bool> boundary(labels.voxel_count(), false);
   for (int k = 0; k < d.z(); ++k)
     for (int j = 0; j < d.y(); ++j)
       for (int i = 0; i < d.x(); ++i) {
-        if (!inside(labels, i, j, k)) continue;
+        if (!inside(i, j, k)) continue;
         const bool border = i == 0 || j == 0 || k == 0 || i == d.x() - 1 || j == d.y() - 1 ||
                             k == d.z() - 1;
-        if (border || !inside(labels, i - 1, j, k) || !inside(labels, i + 1, j, k) ||
-            !inside(labels, i, j - 1, k) || !inside(labels, i, j + 1, k) ||
-            !inside(labels, i, j, k - 1) || !inside(labels, i, j, k + 1))
+        if (border || !inside(i - 1, j, k) || !inside(i + 1, j, k) || !inside(i, j - 1, k) ||
+            !inside(i, j + 1, k) || !inside(i, j, k - 1) || !inside(i, j, k + 1))
           boundary[labels.linear_index(i, j, k)] = true;
       }
   return boundary;
@@ -134,13 +141,15 @@ std::vector<float> squared_distance_transform_mm2(const std::vector<bool>& featu
 
 bool deepest_interior_index(const Volume& labels, Vec3i& ijk, float& depth_mm) {
   const Vec3i d = labels.dims();
+  const auto& data = label_data(labels);
+  auto inside = [&](int i, int j, int k) { return data[labels.linear_index(i, j, k)] != 0; };
   // Crop to the labels' bounding box plus one voxel: the target is usually a small part of the
   // volume, and the transform then costs a fraction of a full-volume pass.
   Vec3i lo = d, hi = Vec3i::Constant(-1);
   for (int k = 0; k < d.z(); ++k)
     for (int j = 0; j < d.y(); ++j)
       for (int i = 0; i < d.x(); ++i)
-        if (inside(labels, i, j, k)) {
+        if (inside(i, j, k)) {
           lo = lo.cwiseMin(Vec3i(i, j, k));
           hi = hi.cwiseMax(Vec3i(i, j, k));
         }
@@ -158,7 +167,7 @@ bool deepest_interior_index(const Volume& labels, Vec3i& ijk, float& depth_mm) {
   for (int k = 0; k < cd.z(); ++k)
     for (int j = 0; j < cd.y(); ++j)
       for (int i = 0; i < cd.x(); ++i)
-        outside[fidx(i + 1, j + 1, k + 1)] = !inside(labels, lo.x() + i, lo.y() + j, lo.z() + k);
+        outside[fidx(i + 1, j + 1, k + 1)] = !inside(lo.x() + i, lo.y() + j, lo.z() + k);
   const auto d2 = squared_distance_transform_mm2(outside, fd, labels.spacing_mm());
   float best = -1.0f;
   for (int k = 1; k <= cd.z(); ++k)
@@ -176,16 +185,15 @@ bool deepest_interior_index(const Volume& labels, Vec3i& ijk, float& depth_mm) {
 
 double dice(const Volume& a, const Volume& b) {
   require_same_grid(a, b);
-  const Vec3i d = a.dims();
+  const auto& da = label_data(a);
+  const auto& db = label_data(b);
   std::size_t na = 0, nb = 0, both = 0;
-  for (int k = 0; k < d.z(); ++k)
-    for (int j = 0; j < d.y(); ++j)
-      for (int i = 0; i < d.x(); ++i) {
-        const bool ia = inside(a, i, j, k), ib = inside(b, i, j, k);
-        na += ia;
-        nb += ib;
-        both += ia && ib;
-      }
+  for (std::size_t idx = 0; idx < da.size(); ++idx) {
+    const bool ia = da[idx] != 0, ib = db[idx] != 0;
+    na += ia;
+    nb += ib;
+    both += ia && ib;
+  }
   if (na + nb == 0) return 1.0;
   return 2.0 * static_cast<double>(both) / static_cast<double>(na + nb);
 }

@@ -99,11 +99,13 @@ PipelineResult run_pipeline(const volume::Volume& input, const Vec3f& seed_mm,
 
   // §6: labels on the input grid and the deepest interior point for seed tracking.
   if (config.want_labels) {
+    t = Clock::now();
     result.labels = reconstruct::rasterize_labels(result.mesh, input);
     Vec3i deepest;
     float depth_mm = 0.0f;
     if (internal::deepest_interior_index(*result.labels, deepest, depth_mm))
       result.deepest_interior_mm = input.index_to_mm(deepest.cast<float>());
+    result.timings.labels_ms = ms_since(t);
   }
   return finish("");
 }
