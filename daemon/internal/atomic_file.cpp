@@ -49,21 +49,28 @@ bool is_temporary_name(const fs::path& path) {
   return name.size() > 1 && name[0] == '.' && name.find(".tmp-") != std::string::npos;
 }
 
-void write_atomically(const fs::path& target, const std::function<void(const fs::path&)>& write) {
+namespace {
+void write_atomically_impl(const fs::path& target,
+                           const std::function<void(const fs::path&)>& write, bool durable) {
   const fs::path tmp = temporary_name(target);
   try {
     write(tmp);
     if (!fs::exists(tmp)) throw std::runtime_error("writer produced no file " + tmp.string());
-    fsync_path(tmp, false);
+    if (durable) fsync_path(tmp, false);
     std::error_code ec;
     fs::rename(tmp, target, ec);
     if (ec) throw std::runtime_error("cannot rename to " + target.string() + ": " + ec.message());
-    fsync_path(parent_or_dot(target), true);
+    if (durable) fsync_path(parent_or_dot(target), true);
   } catch (...) {
     std::error_code ignored;
     fs::remove(tmp, ignored);
     throw;
   }
+}
+}  // namespace
+
+void write_atomically(const fs::path& target, const std::function<void(const fs::path&)>& write) {
+  write_atomically_impl(target, write, true);
 }
 
 void write_file_atomically(const fs::path& target, std::string_view bytes) {
@@ -76,7 +83,7 @@ void write_file_atomically(const fs::path& target, std::string_view bytes) {
 }
 
 void publish_copy_atomically(const fs::path& source, const fs::path& target) {
-  write_atomically(target, [&](const fs::path& tmp) {
+  write_atomically_impl(target, [&](const fs::path& tmp) {
     std::error_code ec;
     fs::create_hard_link(source, tmp, ec);
     if (ec) {
@@ -86,7 +93,7 @@ void publish_copy_atomically(const fs::path& source, const fs::path& target) {
                                  ": " + ec.message());
       }
     }
-  });
+  }, false);
 }
 
 int remove_stale_temporaries(const fs::path& dir) {

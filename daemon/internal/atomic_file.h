@@ -26,7 +26,9 @@ void write_atomically(const std::filesystem::path& target,
 void write_file_atomically(const std::filesystem::path& target, std::string_view bytes);
 
 /// Publishes an existing file under another name in the same file system atomically (hard link
-/// to a temporary name, then rename; a copy where hard links are not supported).
+/// to a temporary name, then rename; a copy where hard links are not supported). No fsync: the
+/// source is already durable and the new name is a convenience (latest.ply) that a crash may
+/// leave pointing at the previous mesh, which is still a whole file.
 void publish_copy_atomically(const std::filesystem::path& source,
                              const std::filesystem::path& target);
 

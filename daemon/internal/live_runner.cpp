@@ -564,11 +564,13 @@ void LiveRunner::write_one(WriteJob& job) {
   const fs::path mesh_rel = fs::path("meshes") / (stem + ".ply");
   const fs::path report_rel = fs::path("reports") / (stem + ".json");
   const Clock::time_point write_started = Clock::now();
+  Clock::time_point mesh_written;
   try {
     write_atomically(out_ / mesh_rel, [&](const fs::path& tmp) {
       if (auto err = reconstruct::write_ply(job.mesh, tmp)) throw std::runtime_error(err->message);
     });
     publish_copy_atomically(out_ / mesh_rel, out_ / "latest.ply");
+    mesh_written = Clock::now();  // the latency ends here: the mesh is where readers look
     write_file_atomically(out_ / report_rel, job.report.dump(2) + "\n");
   } catch (const std::exception& e) {
     // An output that cannot be written is this volume's failure; the journal line still goes out.
@@ -581,7 +583,7 @@ void LiveRunner::write_one(WriteJob& job) {
     return;
   }
   const Clock::time_point done = Clock::now();
-  const double latency_ms = ms_between(job.received, done);
+  const double latency_ms = ms_between(job.received, mesh_written);
   nlohmann::json line = std::move(job.line);
   line["mesh"] = mesh_rel.string();
   line["report"] = report_rel.string();
