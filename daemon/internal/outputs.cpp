@@ -1,11 +1,9 @@
 #include "daemon/internal/outputs.h"
 
-#include <unistd.h>
-
-#include <cstdio>
-#include <fstream>
 #include <functional>
+#include <stdexcept>
 
+#include "daemon/internal/atomic_file.h"
 #include "reconstruct/reconstruct.h"
 
 namespace sonomesh::daemon::internal {
@@ -13,43 +11,31 @@ namespace {
 
 namespace fs = std::filesystem;
 
-// A temporary name in the target's directory (rename is only atomic within one file system) that
-// keeps the extension, because the writers pick the format from it.
-fs::path temporary_for(const fs::path& path) {
-  const fs::path name = path.filename();
-  return path.parent_path() /
-         ("." + name.stem().string() + ".partial-" + std::to_string(::getpid()) +
-          name.extension().string());
-}
-
-// Writes through `write` to a temporary name, then renames over `path`.
+// Runs write_atomically (temporary name, fsync, rename) with a writer that reports errors as a
+// line, and turns every failure into that one line.
 std::optional<std::string> atomically(
     const fs::path& path, const std::function<std::optional<std::string>(const fs::path&)>& write) {
-  const fs::path temporary = temporary_for(path);
-  if (auto problem = write(temporary)) {
-    std::error_code ignored;
-    fs::remove(temporary, ignored);
-    return problem;
+  std::optional<std::string> problem;
+  try {
+    write_atomically(path, [&](const fs::path& temporary) {
+      problem = write(temporary);
+      if (problem) throw std::runtime_error(*problem);
+    });
+  } catch (const std::exception& e) {
+    if (!problem) problem = e.what();
   }
-  std::error_code ec;
-  fs::rename(temporary, path, ec);
-  if (ec) {
-    fs::remove(temporary, ec);
-    return "cannot write " + path.string() + ": " + ec.message();
-  }
-  return std::nullopt;
+  return problem;
 }
 
 }  // namespace
 
 std::optional<std::string> write_text_atomically(const fs::path& path, const std::string& text) {
-  return atomically(path, [&](const fs::path& temporary) -> std::optional<std::string> {
-    std::ofstream out(temporary, std::ios::binary);
-    out << text;
-    out.close();
-    if (!out) return "cannot write " + path.string();
-    return std::nullopt;
-  });
+  try {
+    write_file_atomically(path, text);
+  } catch (const std::exception& e) {
+    return std::string(e.what());
+  }
+  return std::nullopt;
 }
 
 std::optional<std::string> write_mesh_ply(const segment::Mesh& mesh, const fs::path& path) {
