@@ -61,6 +61,9 @@ trap 'rm -f "$tmp"' EXIT
   echo "Targets: ≤ 100 ms at 128³, ≤ 750 ms at 256³."
   echo
   "$speed" --sizes 128,256 --phantoms sphere,cyst-needle --repeat "$bench_repeat"
+  echo
+  # Times are only comparable on an otherwise idle machine; say how busy it was.
+  echo "Load average at the end of the run: $(cut -d' ' -f1-3 /proc/loadavg) ($(nproc) cores)."
 } > "$tmp"
 mkdir -p "$root/docs"
 mv "$tmp" "$out"

@@ -13,6 +13,8 @@ struct Case {
   int genus;
 };
 
+void PrintTo(const Case& c, std::ostream* os) { *os << c.phantom << " (genus " << c.genus << ")"; }
+
 class PipelineOnPhantom : public ::testing::TestWithParam<Case> {};
 
 TEST_P(PipelineOnPhantom, RecoversTopologyAndShape) {
