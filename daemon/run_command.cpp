@@ -3,9 +3,11 @@
 #include <signal.h>
 
 #include <atomic>
+#include <chrono>
 #include <cstdio>
 #include <iostream>
 #include <memory>
+#include <optional>
 #include <thread>
 
 #include <spdlog/sinks/stdout_color_sinks.h>
@@ -147,10 +149,18 @@ int run_daemon(const RunFlags& flags) {
                opened.live ? "live: newest volume wins" : "replay: every volume", config.out.string());
   std::atomic<bool> done{false};
   std::thread signal_thread([&] {
+    // A stop signal that follows the previous one within this window is the same request:
+    // `timeout` and a terminal both deliver SIGINT to the child and again to its process group,
+    // and that must finish the volume in hand, not abort it.
+    constexpr auto kSameRequestWindow = std::chrono::milliseconds(500);
+    std::optional<std::chrono::steady_clock::time_point> last_stop_signal;
     while (!done) {
       timespec timeout{0, 200 * 1000 * 1000};
       const int sig = sigtimedwait(&signals, nullptr, &timeout);
       if (sig == SIGINT || sig == SIGTERM) {
+        const auto now = std::chrono::steady_clock::now();
+        if (last_stop_signal && now - *last_stop_signal < kSameRequestWindow) continue;
+        last_stop_signal = now;
         spdlog::info("{}: stopping after the volume in hand (again to abort it)",
                      sig == SIGINT ? "SIGINT" : "SIGTERM");
         runner->event("signal", {{"signal", sig == SIGINT ? "SIGINT" : "SIGTERM"}});
