@@ -46,10 +46,18 @@ struct BalloonOptions {
                                   // tau_cost_fraction · (F(tissue level) − F(seed level)).
   float tau_cost_fraction = 0.5f; // used when tau_cost == 0 (0.5: stop at the wall's mid level,
                                   // where a step edge of the object lies after smoothing)
+  float cost_window_vox = 20.0f;   // Departure from the paper's plain sum: Ψ_cost leaks, i.e. each
+                                  // step first multiplies it by exp(−|step|/W) (W this window),
+                                  // then adds the step's rise. A wall's rise (a few voxels wide
+                                  // after smoothing) is kept almost whole, while the speckle
+                                  // collected over a long path (the far side of a torus's tube)
+                                  // decays instead of adding up to τ_cost. 0 = the plain sum.
   bool noise_allowance = true;    // P stops when Ψ_cost(P) > τ_cost + ρ·path(P), ρ the rate at
                                   // which speckle alone raises Ψ_cost inside the target (measured
                                   // on the rays from the seed), path(P) the distance P travelled.
                                   // Without it, long paths stop early. false: the plain rule.
+                                  // With a cost window W the allowance is the leaky sum's level
+                                  // for that rate, ρ·W·(1 − exp(−path/W)), at most ρ·W.
   float tau_curv = 1.2f;          // τ_curv: mean over P's edges of H(PQ)/|PQ| (dimensionless;
                                   // = |n₁−n₂|·sin∠, 0 flat, 2 folded back); stop above
   float self_intersection_cos = -0.5f;  // a marked voxel is "the other side" if the normal of

@@ -205,6 +205,7 @@ void check_options(const BalloonOptions& o, float voxel_mm) {
   if (!(o.tau_cost_fraction > 0.0f && o.tau_cost_fraction < 1.0f))
     fail("tau_cost_fraction must be in (0, 1)");
   if (!(o.tau_curv > 0.0f)) fail("tau_curv must be > 0");
+  if (!(o.cost_window_vox >= 0.0f)) fail("cost_window_vox must be >= 0 (0 = plain sum)");
   if (!(o.target_edge_vox > 0.0f)) fail("target_edge_vox must be > 0");
   if (o.remesh_every_iterations < 1) fail("remesh_every_iterations must be >= 1");
   if (o.max_iterations < 1) fail("max_iterations must be >= 1");
@@ -301,6 +302,7 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::G
   // the target times the path length to the threshold, so every vertex stops at the same point
   // of the wall's rise however far it travelled.
   const float noise_per_mm = options.noise_allowance ? seed.noise_rise_per_mm : 0.0f;
+  const float window_mm = options.cost_window_vox * vox_mm;
   stats.noise_rise_per_mm = seed.noise_rise_per_mm;
   stats.tau_cost_used = tau_cost;
 
@@ -427,11 +429,16 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::G
         float value;
         Vec3f grad;
         sampler.value_and_gradient(p, value, grad);
+        const float step_mm = d.norm();
+        if (window_mm > 0.0f) a.cost[v] *= std::exp(-step_mm / window_mm);  // leaky (see header)
         a.cost[v] += std::max(0.0f, grad.dot(d)) * scale.weight(value);
         a.next_pos[v] = target;
         moved[v] = 1;
-        a.path[v] += d.norm();
-        if (a.cost[v] > tau_cost + noise_per_mm * a.path[v]) a.reason[v] = StopReason::Boundary;
+        a.path[v] += step_mm;
+        const float allowance =
+            window_mm > 0.0f ? noise_per_mm * window_mm * (1.0f - std::exp(-a.path[v] / window_mm))
+                             : noise_per_mm * a.path[v];
+        if (a.cost[v] > tau_cost + allowance) a.reason[v] = StopReason::Boundary;
         else ++local_moving;
       }
       moving_count.fetch_add(local_moving, std::memory_order_relaxed);
