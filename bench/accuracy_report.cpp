@@ -13,6 +13,7 @@
 #include <vector>
 
 #include "daemon/internal/metrics.h"
+#include "daemon/internal/run_config.h"
 #include "daemon/pipeline.h"
 #include "sim/sim.h"
 
@@ -41,6 +42,9 @@ int main(int argc, char** argv) {
   app.add_option("--repeat", repeat, "Runs per case; the median time is reported")
       ->check(CLI::Range(1, 100));
   app.add_option("--format", format, "md or json")->check(CLI::IsMember({"md", "json"}));
+  std::string config_path;
+  app.add_option("--config", config_path,
+                 "TOML file as sonomeshd run reads it; its [pipeline] tables set the options");
   app.add_flag("--header", header, "Print the markdown table header and exit");
   try {
     app.parse(argc, argv);
@@ -58,11 +62,18 @@ int main(int argc, char** argv) {
     return 0;
   }
   try {
+    daemon::RunConfig config;
+    if (!config_path.empty()) {
+      if (auto error = daemon::load_config_file(config_path, config)) {
+        std::fprintf(stderr, "accuracy_report: %s\n", error->c_str());
+        return 2;
+      }
+    }
     const sim::Phantom phantom = sim::make_phantom(spec);
     daemon::PipelineResult result;
     std::vector<double> totals;
     for (int r = 0; r < repeat; ++r) {
-      result = daemon::run_pipeline(phantom.image, phantom.seed_mm, daemon::PipelineConfig{});
+      result = daemon::run_pipeline(phantom.image, phantom.seed_mm, config.pipeline);
       totals.push_back(result.timings.total_ms);
     }
     nlohmann::json row = {{"phantom", spec.phantom},   {"size", spec.size_vox},
