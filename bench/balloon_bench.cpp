@@ -51,6 +51,8 @@ float wall_distance_vox(const volume::Volume& truth, const Vec3f& p_mm, int reac
 int main(int argc, char** argv) {
   int size = 128, repeat = 5, threads = 0, max_iterations = 2000;
   bool noise_allowance = true, relative = true;
+  float fraction = segment::BalloonOptions{}.tau_cost_fraction;
+  float max_area = segment::BalloonOptions{}.max_area_fraction;
   std::vector<std::string> names;
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
@@ -60,6 +62,8 @@ int main(int argc, char** argv) {
     else if (a == "--max-iterations" && i + 1 < argc) max_iterations = std::atoi(argv[++i]);
     else if (a == "--no-noise-allowance") noise_allowance = false;
     else if (a == "--plain-cost") relative = false;
+    else if (a == "--max-area" && i + 1 < argc) max_area = static_cast<float>(std::atof(argv[++i]));
+    else if (a == "--fraction" && i + 1 < argc) fraction = static_cast<float>(std::atof(argv[++i]));
     else names.push_back(a);
   }
   if (names.empty()) names = {"sphere", "torus", "cyst-needle"};
@@ -74,12 +78,13 @@ int main(int argc, char** argv) {
     segment::BalloonResult r;
     for (int k = 0; k < repeat; ++k) {
       const auto t0 = std::chrono::steady_clock::now();
-      r = segment::inflate_balloon(smoothed, gradient, ph.seed_mm, {.relative_cost = relative, .noise_allowance = noise_allowance, .max_iterations = max_iterations, .threads = threads});
+      r = segment::inflate_balloon(smoothed, gradient, ph.seed_mm, {.relative_cost = relative, .tau_cost_fraction = fraction, .noise_allowance = noise_allowance, .max_iterations = max_iterations, .max_area_fraction = max_area, .threads = threads});
       ms.push_back(std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count());
     }
     std::sort(ms.begin(), ms.end());
     if (!r.error.empty()) {
-      std::printf("%-12s %5d  error: %s\n", name.c_str(), size, r.error.c_str());
+      std::printf("%-12s %5d  error: %s (r0 %.2f mm, %d iterations, %.0f ms)\n", name.c_str(), size,
+                  r.error.c_str(), r.stats.initial_radius_mm, r.stats.iterations, ms[ms.size() / 2]);
       continue;
     }
     std::vector<float> dist;

@@ -15,6 +15,7 @@
 /// axis of an anisotropic grid); positions are in mm; costs in grey levels of the smoothed image.
 
 #include <array>
+#include <cstddef>
 #include <stop_token>
 #include <string>
 #include <vector>
@@ -44,8 +45,8 @@ struct BalloonOptions {
   float tau_cost = 0.0f;          // τ_cost in the cost's scale (grey levels if !relative_cost);
                                   // 0 = derive from the image around the seed:
                                   // tau_cost_fraction · (F(tissue level) − F(seed level)).
-  float tau_cost_fraction = 0.5f; // used when tau_cost == 0 (0.5: stop at the wall's mid level,
-                                  // where a step edge of the object lies after smoothing)
+  float tau_cost_fraction = 0.5f; // used when tau_cost == 0: this fraction of the rise from the
+                                  // seed level to the tissue level, in the cost's scale
   float cost_window_vox = 20.0f;   // Departure from the paper's plain sum: Ψ_cost leaks, i.e. each
                                   // step first multiplies it by exp(−|step|/W) (W this window),
                                   // then adds the step's rise. A wall's rise (a few voxels wide
@@ -70,6 +71,9 @@ struct BalloonOptions {
 
   // --- Termination ---
   int max_iterations = 2000;      // remaining moving vertices then get IterationLimit
+  float max_area_fraction = 1.0f; // a leak bound: a balloon with more vertices than a surface of
+                                  // this fraction of the volume's bounding-box area needs has
+                                  // escaped through a gap; it ends with `error` set
   int stall_window_iterations = 20;  // stop when no moving vertex got further than
   float stall_motion_vox = 0.02f;    // stall_motion_vox per iteration over this window
 
@@ -91,6 +95,9 @@ struct BalloonStats {
   double elapsed_ms = 0.0;
   bool stalled = false;             // ended because nothing moved any more
   bool cancelled = false;           // ended because the stop_token was triggered
+  bool leaked = false;              // ended at the leak bound (max_area_fraction); error set
+  std::size_t front_voxels = 0;     // voxels in A_t (swept by the front) at the end
+  std::size_t front_grid_bytes = 0; // memory of A_t's sparse grid
 };
 
 struct BalloonResult {
@@ -104,7 +111,8 @@ struct BalloonResult {
 /// Inflates the balloon from `seed_mm` in a volume the caller has already smoothed (method.md
 /// §0), with the central-difference gradient of that smoothed volume (same grid).
 /// A seed that is not in a hypoechoic region (brighter than or as bright as its surroundings,
-/// e.g. on the needle or in tissue) gives a result with `error` set and an empty mesh.
+/// e.g. on the needle or in tissue), or a balloon that leaks out of its target (leak bound),
+/// gives a result with `error` set and an empty mesh.
 /// @throws std::invalid_argument if `seed_mm` lies outside the volume, if the gradient's grid
 ///         differs from the volume's, or for options out of range (h·μ > 0.5 vox, h·λ ∉ [0, 1],
 ///         non-positive edge length).

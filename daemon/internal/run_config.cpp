@@ -259,6 +259,7 @@ std::optional<std::string> load_config_text(const std::string& text, const std::
     b.number("target_edge_vox", o.target_edge_vox, 0.25, 20);
     b.number("remesh_every_iterations", o.remesh_every_iterations, 1, 1000);
     b.number("max_iterations", o.max_iterations, 1, 1000000);
+    b.number("max_area_fraction", o.max_area_fraction, 1e-3, 100);
     b.number("stall_window_iterations", o.stall_window_iterations, 1, 100000);
     b.number("stall_motion_vox", o.stall_motion_vox, 0, 10);
     b.number("threads", o.threads, 0, 256);
@@ -348,6 +349,8 @@ std::string to_toml(const RunConfig& c) {
     << "target_edge_vox = " << toml_float(b.target_edge_vox) << "\n"
     << "remesh_every_iterations = " << b.remesh_every_iterations << "\n"
     << "max_iterations = " << b.max_iterations << "\n"
+    << "max_area_fraction = " << toml_float(b.max_area_fraction)
+    << "  # leak bound, of the volume's bounding-box area\n"
     << "stall_window_iterations = " << b.stall_window_iterations << "\n"
     << "stall_motion_vox = " << toml_float(b.stall_motion_vox) << "\n"
     << "threads = " << b.threads << "\n\n"

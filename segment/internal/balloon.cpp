@@ -33,7 +33,8 @@ using internal::TriMesh;
 using volume::Vec3i;
 
 // ---------------------------------------------------------------------------------------------
-// The occupancy A_t with, per voxel, the normal of the front that first swept it.
+// The occupancy A_t (volume::FrontGrid, an OpenVDB grid) with, per voxel, the normal of the front
+// that first swept it.
 //
 // "Already inside before P's own front got there" is decided by the direction of the front that
 // marked the voxel, not by its age: where two fronts meet head-on (the two ends of the tube of a
@@ -41,72 +42,41 @@ using volume::Vec3i;
 // iteration or two, so an age test cannot tell them from P's own front, while their normals are
 // opposite. P's own front marked the voxels around P with normals close to P's.
 //
-// Dense, one uint32 per voxel (int8 normal x, y, z and a marked byte), written with atomic
-// compare-and-swap so marking runs in parallel; first marker wins. See the report in
-// bench/balloon_bench.cpp for why this is not a volume::OccupancyGrid (bool only, not
-// thread-safe, and slower per access).
+// A_t grows incrementally: each iteration marks only the samples of the vertices that moved. The
+// iteration reads A_t in parallel (one Reader per task) and marks it afterwards in one serial
+// pass in vertex order, so the first marker of a voxel, and with it every self-intersection stop,
+// is the same however the threads were scheduled.
 class FrontMarks {
  public:
-  FrontMarks(const volume::Volume& grid)
-      : dims_(grid.dims()),
+  explicit FrontMarks(const volume::Volume& grid)
+      : grid_(grid),
+        dims_(grid.dims()),
         origin_mm_(grid.origin_mm()),
-        inv_spacing_(grid.spacing_mm().cwiseInverse()),
-        cells_(grid.voxel_count()) {}
+        inv_spacing_(grid.spacing_mm().cwiseInverse()) {}
 
-  // Voxel containing p (voxel centres at integer indices); -1 outside.
-  std::int64_t index(const Vec3f& p_mm) const {
+  // Voxel containing p (voxel centres at integer indices); false outside the volume.
+  bool voxel(const Vec3f& p_mm, Vec3i& ijk) const {
     const Vec3f u = (p_mm - origin_mm_).cwiseProduct(inv_spacing_);
-    const int i = static_cast<int>(std::lround(u.x()));
-    const int j = static_cast<int>(std::lround(u.y()));
-    const int k = static_cast<int>(std::lround(u.z()));
-    if (i < 0 || j < 0 || k < 0 || i >= dims_.x() || j >= dims_.y() || k >= dims_.z()) return -1;
-    return (static_cast<std::int64_t>(k) * dims_.y() + j) * dims_.x() + i;
-  }
-
-  void mark(const Vec3f& p_mm, const Vec3f& n) {
-    const std::int64_t idx = index(p_mm);
-    if (idx < 0) return;
-    std::atomic_ref<std::uint32_t> cell(cells_[static_cast<std::size_t>(idx)]);
-    std::uint32_t expected = 0;
-    if (cell.load(std::memory_order_relaxed) != 0) return;
-    cell.compare_exchange_strong(expected, encode(n), std::memory_order_relaxed);
+    ijk = Vec3i(static_cast<int>(std::lround(u.x())), static_cast<int>(std::lround(u.y())),
+                static_cast<int>(std::lround(u.z())));
+    return (ijk.array() >= 0).all() && (ijk.array() < dims_.array()).all();
   }
 
   // True if the voxel at p was swept by a front whose normal opposes n (cosine < cos_limit).
-  bool other_side(const Vec3f& p_mm, const Vec3f& n, float cos_limit) const {
-    const std::int64_t idx = index(p_mm);
-    if (idx < 0) return false;
-    const std::uint32_t c =
-        std::atomic_ref<std::uint32_t>(const_cast<std::uint32_t&>(cells_[static_cast<std::size_t>(idx)]))
-            .load(std::memory_order_relaxed);
-    if (c == 0) return false;
-    return decode(c).dot(n) < cos_limit;
+  static bool other_side(const volume::FrontGrid::Reader& reader, const Vec3i& ijk, const Vec3f& n,
+                         float cos_limit) {
+    Vec3f marked_normal;
+    return reader.normal(ijk, marked_normal) && marked_normal.dot(n) < cos_limit;
   }
 
-  std::size_t marked_count() const {
-    return static_cast<std::size_t>(std::count_if(cells_.begin(), cells_.end(),
-                                                  [](std::uint32_t c) { return c != 0; }));
-  }
+  volume::FrontGrid& grid() { return grid_; }
+  const volume::FrontGrid& grid() const { return grid_; }
 
  private:
-  static std::uint32_t encode(const Vec3f& n) {
-    auto q = [](float v) {
-      return static_cast<std::uint32_t>(static_cast<std::uint8_t>(
-          static_cast<std::int8_t>(std::lround(std::clamp(v, -1.0f, 1.0f) * 127.0f))));
-    };
-    return q(n.x()) | (q(n.y()) << 8) | (q(n.z()) << 16) | (1u << 24);
-  }
-  static Vec3f decode(std::uint32_t c) {
-    auto d = [](std::uint32_t b) {
-      return static_cast<float>(static_cast<std::int8_t>(static_cast<std::uint8_t>(b & 0xff))) / 127.0f;
-    };
-    return {d(c), d(c >> 8), d(c >> 16)};
-  }
-
+  volume::FrontGrid grid_;
   Vec3i dims_;
   Vec3f origin_mm_;
   Vec3f inv_spacing_;
-  std::vector<std::uint32_t> cells_;
 };
 
 // ---------------------------------------------------------------------------------------------
@@ -143,6 +113,9 @@ void extract(const BalloonMesh& bm, Arrays& a) {
   a.ring_vertex.clear();
   a.ring_face_left.clear();
   a.ring_face_right.clear();
+  a.ring_vertex.reserve(m.n_halfedges());
+  a.ring_face_left.reserve(m.n_halfedges());
+  a.ring_face_right.reserve(m.n_halfedges());
   for (auto v : m.vertices()) {
     const auto& p = m.point(v);
     const auto i = static_cast<std::size_t>(v.idx());
@@ -209,6 +182,7 @@ void check_options(const BalloonOptions& o, float voxel_mm) {
   if (!(o.target_edge_vox > 0.0f)) fail("target_edge_vox must be > 0");
   if (o.remesh_every_iterations < 1) fail("remesh_every_iterations must be >= 1");
   if (o.max_iterations < 1) fail("max_iterations must be >= 1");
+  if (!(o.max_area_fraction > 0.0f)) fail("max_area_fraction must be > 0");
   if (o.stall_window_iterations < 1) fail("stall_window_iterations must be >= 1");
   if (o.threads < 0) fail("threads must be >= 0");
 }
@@ -293,6 +267,10 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::G
         " (" + std::to_string(seed.rays_hit) + "/" + std::to_string(seed.rays) +
         " rays reach a brighter wall)");
   }
+  // τ_cost: tau_cost_fraction of the rise from the seed's level to the tissue level, in the
+  // cost's scale. (Mapping a grey-level fraction through the log scale instead, which puts 0.5 at
+  // the grey mid level, was measured: with the noise allowance it stops vertices 0.6 voxel
+  // outside the wall on average, against 0.44 voxel and half of them inside with this rule.)
   const float tau_cost =
       options.tau_cost > 0.0f
           ? options.tau_cost
@@ -307,9 +285,11 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::G
   stats.tau_cost_used = tau_cost;
 
   // S^0 radius: initial_radius_vox, but inside the rays' safe reach (the sphere must start inside
-  // the object) and not below one voxel.
-  float radius_mm = options.initial_radius_vox * vox_mm;
-  radius_mm = std::min(radius_mm, 0.8f * seed.safe_radius_mm);
+  // the object) and not below one voxel. (Growing S^0 to fill the homogeneous region around the
+  // seed, which method.md §1 allows, was measured: it saves early iterations of a small mesh,
+  // hardly any time, and a 102-vertex sphere refined from a large radius by splits alone has
+  // slivers that the evolution folds.)
+  float radius_mm = std::min(options.initial_radius_vox * vox_mm, 0.8f * seed.safe_radius_mm);
   radius_mm = std::max(radius_mm, 1.0f * vox_mm);
   stats.initial_radius_mm = radius_mm;
 
@@ -325,6 +305,15 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::G
   const Vec3f box_lo = smoothed->min_mm() + Vec3f::Constant(0.5f * vox_mm);
   const Vec3f box_hi = smoothed->max_mm() - Vec3f::Constant(0.5f * vox_mm);
   const float stall_mm = options.stall_motion_vox * vox_mm;
+  // A leak (the balloon escaping through a gap into the tissue) shows as a balloon larger than
+  // anything the volume can hold as a closed target: bound the vertex count by the number a
+  // surface of the volume's whole bounding-box area needs at the target edge length.
+  const Vec3f extent_mm = smoothed->max_mm() - smoothed->min_mm();
+  const float box_area_mm2 = 2.0f * (extent_mm.x() * extent_mm.y() + extent_mm.y() * extent_mm.z() +
+                                     extent_mm.z() * extent_mm.x());
+  const float edge_mm = options.target_edge_vox * vox_mm;
+  const std::size_t max_vertices = static_cast<std::size_t>(
+      options.max_area_fraction * box_area_mm2 / (0.433f * edge_mm * edge_mm) * 0.5f) + 1000;
 
   const int threads = options.threads > 0 ? options.threads
                                           : std::max(1, static_cast<int>(std::thread::hardware_concurrency()));
@@ -335,17 +324,31 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::G
   Arrays a;
   extract(bm, a);
 
-  auto compute_normals = [&] {
+  // The vertices still moving (k = 1), ascending: every per-iteration loop runs over these only,
+  // so a balloon whose walls have mostly settled (the far end of a torus's tube still growing)
+  // costs what its moving front costs.
+  std::vector<std::uint32_t> active;
+  auto collect_active = [&] {
+    active.clear();
+    for (std::uint32_t v = 0; v < a.pos.size(); ++v)
+      if (a.reason[v] == StopReason::Moving) active.push_back(v);
+  };
+  // Face normals where a vertex changed (all of them when `all`), then vertex normals, equation
+  // (2), of the active vertices: the only ones whose normal is read (to move, or to mark A_t).
+  std::vector<std::uint8_t> moved(a.pos.size(), 1);
+  auto compute_normals = [&](bool all) {
     parallel_for(arena, serial, a.tri.size(), [&](std::size_t b, std::size_t e) {
       for (std::size_t f = b; f < e; ++f) {
         const auto& t = a.tri[f];
+        if (!all && !(moved[t[0]] | moved[t[1]] | moved[t[2]])) continue;
         const Vec3f n = (a.pos[t[1]] - a.pos[t[0]]).cross(a.pos[t[2]] - a.pos[t[0]]);
         const float len = n.norm();
         a.face_normal[f] = len > 0.0f ? Vec3f(n / len) : Vec3f::Zero();
       }
     });
-    parallel_for(arena, serial, a.pos.size(), [&](std::size_t b, std::size_t e) {
-      for (std::size_t v = b; v < e; ++v) {
+    parallel_for(arena, serial, active.size(), [&](std::size_t b, std::size_t e) {
+      for (std::size_t i = b; i < e; ++i) {
+        const std::uint32_t v = active[i];
         Vec3f n = Vec3f::Zero();  // equation (2): normalised sum of the unit triangle normals
         for (std::uint32_t r = a.ring_begin[v]; r < a.ring_begin[v + 1]; ++r)
           n += a.face_normal[a.ring_face_left[r]];
@@ -358,23 +361,59 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::G
   // Marks the surface samples of every vertex that moved: its own voxel and the midpoints of its
   // edges. Edges are at most 4/3 L <= 2 voxels long, so the samples lie at most a voxel apart and
   // a front sweeping half a voxel per iteration leaves a solid band of marked voxels.
-  std::vector<std::uint8_t> moved(a.pos.size(), 1);
+  // Two phases: the samples not yet in A_t are found in parallel (slot r + v of vertex v's CSR
+  // range, one per edge plus its own), then marked serially in vertex order.
+  constexpr int kNoVoxel = std::numeric_limits<int>::min();
+  std::vector<Vec3i> pending;
   auto mark_front = [&] {
-    parallel_for(arena, serial, a.pos.size(), [&](std::size_t b, std::size_t e) {
-      for (std::size_t v = b; v < e; ++v) {
+    pending.resize(a.ring_vertex.size() + a.pos.size());
+    parallel_for(arena, serial, active.size(), [&](std::size_t b, std::size_t e) {
+      const volume::FrontGrid::Reader reader(marks.grid());
+      for (std::size_t i = b; i < e; ++i) {
+        const std::uint32_t v = active[i];
+        const std::uint32_t slot0 = a.ring_begin[v] + v;
+        auto stage = [&](std::uint32_t slot, const Vec3f& p_mm) {
+          Vec3i ijk;
+          pending[slot].x() = kNoVoxel;
+          if (marks.voxel(p_mm, ijk) && !reader.marked(ijk)) pending[slot] = ijk;
+        };
+        pending[slot0].x() = kNoVoxel;
         if (!moved[v]) continue;
-        marks.mark(a.pos[v], a.normal[v]);
-        for (std::uint32_t r = a.ring_begin[v]; r < a.ring_begin[v + 1]; ++r) {
+        stage(slot0, a.pos[v]);
+        std::uint32_t slot = slot0 + 1;
+        for (std::uint32_t r = a.ring_begin[v]; r < a.ring_begin[v + 1]; ++r, ++slot) {
           const std::uint32_t q = a.ring_vertex[r];
-          if (q < v && moved[q]) continue;  // that edge is marked from q
-          marks.mark(0.5f * (a.pos[v] + a.pos[q]), a.normal[v]);
+          if (q < v && moved[q]) {  // that edge is marked from q
+            pending[slot].x() = kNoVoxel;
+            continue;
+          }
+          stage(slot, 0.5f * (a.pos[v] + a.pos[q]));
         }
       }
     });
+    for (const std::uint32_t v : active) {
+      if (!moved[v]) continue;
+      const std::uint32_t slot0 = a.ring_begin[v] + v, slot1 = a.ring_begin[v + 1] + v + 1;
+      for (std::uint32_t slot = slot0; slot < slot1; ++slot)
+        if (pending[slot].x() != kNoVoxel) marks.grid().mark(pending[slot], a.normal[v]);
+    }
   };
 
-  compute_normals();
+  collect_active();
+  compute_normals(true);
   mark_front();
+
+  // Is an edge with a moving end out of [ε_min, ε_max]? Remeshing (and the re-extraction of the
+  // flat arrays after it) costs O(mesh), so a pass runs only when it has something to do.
+  const float min2 = limits.min_edge_mm * limits.min_edge_mm, max2 = limits.max_edge_mm * limits.max_edge_mm;
+  auto needs_remesh = [&] {
+    for (const std::uint32_t v : active)
+      for (std::uint32_t r = a.ring_begin[v]; r < a.ring_begin[v + 1]; ++r) {
+        const float l2 = (a.pos[a.ring_vertex[r]] - a.pos[v]).squaredNorm();
+        if (l2 > max2 || l2 < min2) return true;
+      }
+    return false;
+  };
 
   int it = 0;
   bool all_stopped = false;
@@ -385,15 +424,15 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::G
       stats.cancelled = true;
       break;
     }
-    // compute_normals() is current for a.pos here.
+    // Normals are current for a.pos here; every update reads the previous iterate only.
     std::atomic<int> moving_count{0};
-    parallel_for(arena, serial, a.pos.size(), [&](std::size_t b, std::size_t e) {
+    parallel_for(arena, serial, active.size(), [&](std::size_t b, std::size_t e) {
+      const volume::FrontGrid::Reader reader(marks.grid());
       int local_moving = 0;
-      for (std::size_t v = b; v < e; ++v) {
+      for (std::size_t i = b; i < e; ++i) {
+        const std::uint32_t v = active[i];
         const Vec3f p = a.pos[v];
-        a.next_pos[v] = p;
         moved[v] = 0;
-        if (a.reason[v] != StopReason::Moving) continue;
         const std::uint32_t r0 = a.ring_begin[v], r1 = a.ring_begin[v + 1];
         const Vec3f n = a.normal[v];
         Vec3f centroid = Vec3f::Zero();
@@ -421,7 +460,9 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::G
           a.reason[v] = StopReason::Boundary;  // the volume's edge bounds the object
           continue;
         }
-        if (marks.other_side(target, n, options.self_intersection_cos)) {
+        Vec3i target_ijk;
+        if (marks.voxel(target, target_ijk) &&
+            FrontMarks::other_side(reader, target_ijk, n, options.self_intersection_cos)) {
           a.reason[v] = StopReason::SelfIntersection;  // a type-1 vertex
           continue;
         }
@@ -443,9 +484,14 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::G
       }
       moving_count.fetch_add(local_moving, std::memory_order_relaxed);
     });
-    std::swap(a.pos, a.next_pos);
-    compute_normals();
+    parallel_for(arena, serial, active.size(), [&](std::size_t b, std::size_t e) {
+      for (std::size_t i = b; i < e; ++i)
+        if (moved[active[i]]) a.pos[active[i]] = a.next_pos[active[i]];
+    });
+    compute_normals(false);
     mark_front();
+    for (const std::uint32_t v : active) moved[v] = 0;
+    collect_active();
 
     if (moving_count.load() == 0) {
       all_stopped = true;
@@ -457,9 +503,8 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::G
     if (it % options.stall_window_iterations == 0) {
       const float limit_mm = stall_mm * static_cast<float>(options.stall_window_iterations);
       bool progress = false;
-      for (std::size_t v = 0; v < a.pos.size(); ++v) {
-        if (a.reason[v] == StopReason::Moving && (a.pos[v] - a.anchor[v]).norm() > limit_mm)
-          progress = true;
+      for (const std::uint32_t v : active) {
+        if ((a.pos[v] - a.anchor[v]).norm() > limit_mm) progress = true;
         a.anchor[v] = a.pos[v];
       }
       // Vertices in a crease (along a needle) can also be split off and melted back by
@@ -476,7 +521,7 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::G
         break;
       }
     }
-    if (it % options.remesh_every_iterations == 0) {
+    if (it % options.remesh_every_iterations == 0 && needs_remesh()) {
       write_back(a, bm);
       const auto counts = internal::remesh(bm, limits);
       ++stats.remesh_passes;
@@ -484,17 +529,30 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::G
       stats.collapses += counts.collapses;
       extract(bm, a);
       moved.assign(a.pos.size(), 0);
-      compute_normals();
+      collect_active();
+      compute_normals(true);
+      if (a.pos.size() > max_vertices) {
+        stats.leaked = true;
+        break;
+      }
     }
   }
   stats.iterations = std::min(it, options.max_iterations);
-  const bool hit_limit = !all_stopped && !stats.stalled && !stats.cancelled;
+  const bool hit_limit = !all_stopped && !stats.stalled && !stats.cancelled && !stats.leaked;
   if (hit_limit)
     for (auto& r : a.reason)
       if (r == StopReason::Moving) r = StopReason::IterationLimit;
 
   write_back(a, bm);
   bm.mesh().garbage_collection();
+  stats.front_voxels = marks.grid().marked_count();
+  stats.front_grid_bytes = marks.grid().memory_bytes();
+  if (stats.leaked) {
+    return finish_error("the balloon leaked: " + std::to_string(a.pos.size()) +
+                        " vertices, more than a closed target in this volume can need (" +
+                        std::to_string(max_vertices) + "); the wall has a gap the balloon "
+                        "escaped through, or the seed is not inside a closed target");
+  }
   result.mesh = internal::to_plain_mesh(bm.mesh());
   result.stop.reserve(result.mesh.vertices.size());
   for (auto v : bm.mesh().vertices()) {

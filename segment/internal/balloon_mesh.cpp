@@ -259,7 +259,8 @@ RemeshCounts remesh(BalloonMesh& bm, const RemeshLimits& limits) {
         ++counts.collapses;
     }
   }
-  m.garbage_collection();
+  // Only collapses delete elements; a pass without any leaves the handles as they are.
+  if (counts.collapses > 0) m.garbage_collection();
   return counts;
 }
 

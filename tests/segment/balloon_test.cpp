@@ -246,14 +246,48 @@ TEST(Balloon, RejectsAnInflationStepThatCouldJumpAWall) {
                std::invalid_argument);
 }
 
-TEST(Balloon, SerialAndParallelRunsAgree) {
-  const Prepared p = prepare("sphere", 48);
+TEST(Balloon, SerialAndParallelRunsAreIdentical) {
+  // The cyst with its needle: the fronts meet behind the needle, so the self-intersection stops
+  // depend on which front marked A_t first. Marks are applied in vertex order after each
+  // parallel step, so the thread count must not change a single vertex.
+  const Prepared p = prepare("cyst-needle", 56);
   const auto serial = segment::inflate_balloon(p.smoothed, p.gradient, p.phantom.seed_mm, {.threads = 1});
   const auto parallel = segment::inflate_balloon(p.smoothed, p.gradient, p.phantom.seed_mm, {.threads = 2});
-  // Every per-vertex update reads only the previous iterate, so the results are identical up to
-  // the order of first marks in A_t, which only matters where two fronts meet.
-  EXPECT_EQ(serial.mesh.vertices.size(), parallel.mesh.vertices.size());
+  ASSERT_EQ(serial.error, "");
+  EXPECT_GT(count(serial, StopReason::SelfIntersection), 0);
   EXPECT_EQ(serial.stats.iterations, parallel.stats.iterations);
+  ASSERT_EQ(serial.mesh.vertices.size(), parallel.mesh.vertices.size());
+  EXPECT_EQ(serial.mesh.triangles, parallel.mesh.triangles);
+  EXPECT_EQ(serial.stop, parallel.stop);
+  std::size_t differing = 0;
+  for (std::size_t i = 0; i < serial.mesh.vertices.size(); ++i)
+    differing += serial.mesh.vertices[i] != parallel.mesh.vertices[i];
+  EXPECT_EQ(differing, 0u);
+}
+
+TEST(Balloon, ALeakThroughAGapEndsWithAnErrorNotAHang) {
+  // A bright shell (radius 9-12 voxels) around a dark inside, with a hole 12 voxels wide on +x
+  // into the dark outside: the balloon escapes through it and would fill the volume.
+  volume::Volume image(Vec3i(48, 48, 48), Vec3f(1, 1, 1), Vec3f(0, 0, 0), volume::VoxelType::Float32);
+  for (int k = 0; k < 48; ++k)
+    for (int j = 0; j < 48; ++j)
+      for (int i = 0; i < 48; ++i) {
+        const Vec3f d(i - 24.0f, j - 24.0f, k - 24.0f);
+        const bool shell = d.norm() >= 9.0f && d.norm() <= 12.0f;
+        const bool hole = d.x() > 0.0f && std::hypot(d.y(), d.z()) < 6.0f;
+        image.f32()[image.linear_index(i, j, k)] = shell && !hole ? 120.0f : 30.0f;
+      }
+  const auto smoothed = volume::smooth_gaussian(image, 1.0f);
+  const auto gradient = volume::central_gradient(smoothed);
+  // The default bound (the bounding box's whole area) would let it first spread over the volume
+  // walls; a quarter of it is still four times this shell's area.
+  const auto t0 = std::chrono::steady_clock::now();
+  const auto r = segment::inflate_balloon(smoothed, gradient, Vec3f(24, 24, 24), {.max_area_fraction = 0.25f});
+  const double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+  EXPECT_TRUE(r.stats.leaked);
+  EXPECT_NE(r.error.find("leaked"), std::string::npos) << r.error;
+  EXPECT_TRUE(r.mesh.vertices.empty());
+  EXPECT_LT(ms, 10000.0) << "the bound ends the evolution";
 }
 
 TEST(Balloon, WorksOnAnisotropicSpacing) {
