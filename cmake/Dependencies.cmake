@@ -40,13 +40,6 @@ target_include_directories(sonomesh_dep_openvdb SYSTEM INTERFACE ${OPENVDB_INCLU
 target_link_libraries(sonomesh_dep_openvdb INTERFACE ${OPENVDB_LIB} TBB::tbb Imath::Imath Threads::Threads)
 add_library(deps::openvdb ALIAS sonomesh_dep_openvdb)
 
-# OpenMesh.
-find_package(OpenMesh REQUIRED)
-add_library(sonomesh_dep_openmesh INTERFACE)
-target_link_libraries(sonomesh_dep_openmesh INTERFACE OpenMeshCore)
-target_compile_definitions(sonomesh_dep_openmesh INTERFACE _USE_MATH_DEFINES)
-add_library(deps::openmesh ALIAS sonomesh_dep_openmesh)
-
 pkg_check_modules(LIBUSB REQUIRED IMPORTED_TARGET libusb-1.0)
 add_library(deps::libusb ALIAS PkgConfig::LIBUSB)
 

@@ -13,7 +13,7 @@ packages=(
   # OpenVDB 10 headers include Boost (numeric/conversion, any, uuid); its -dev package omits them
   libboost-dev
   # segment/ and reconstruct/
-  libopenmesh-dev libfftw3-dev
+  libfftw3-dev
   # daemon/
   libcli11-dev libtomlplusplus-dev nlohmann-json3-dev libspdlog-dev libfmt-dev libcpp-httplib-dev
   # tests and benchmarks (HIL tests run the real libusb/V4L2 paths under umockdev)

@@ -1,15 +1,18 @@
 // The balloon evolution of method.md §1-3 (paper §2-3).
 //
 // Between two remeshing passes the mesh's connectivity is fixed, so the per-iteration loop runs on
-// flat arrays (positions, state, one-ring in CSR form, face normals) extracted from the OpenMesh
-// mesh; positions and state go back into OpenMesh for each remeshing pass. That keeps the hot
-// loop free of handle indirections and lets it run in parallel (TBB parallel_for over vertices).
+// flat arrays (positions, state, one-ring in CSR form, face normals) copied from the halfedge mesh;
+// positions and state go back into it for each remeshing pass. That keeps the hot loop free of
+// halfedge walks and lets it run in parallel (TBB parallel_for over vertices). The mesh is
+// purpose-built (balloon_mesh.h: OpenMesh's remeshing took ~70 % of the time), with flat arrays
+// of its own, so the copy is a pass over arrays.
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 #include <tbb/task_arena.h>
 
 #include <Eigen/Geometry>
 #include <algorithm>
+#include <cassert>
 #include <limits>
 #include <atomic>
 #include <chrono>
@@ -29,7 +32,6 @@ namespace {
 
 using internal::BalloonMesh;
 using internal::ImageSampler;
-using internal::TriMesh;
 using volume::Vec3i;
 
 // ---------------------------------------------------------------------------------------------
@@ -99,57 +101,63 @@ struct Arrays {
   std::vector<std::uint32_t> ring_face_right;
 };
 
+// Expects no deleted elements (remesh() collects its garbage), so mesh indices are array indices.
+// Each ring runs clockwise from the vertex's outgoing halfedge, as OpenMesh's did: the sums over
+// it, and with them the results, stay what they were.
 void extract(const BalloonMesh& bm, Arrays& a) {
-  const TriMesh& m = bm.mesh();
-  const std::size_t nv = m.n_vertices();
-  a.pos.resize(nv);
+  assert(!bm.has_garbage());
+  const std::size_t nv = bm.n_vertices(), nh = bm.n_halfedges(), nf = bm.n_faces();
+  const auto to = bm.halfedge_vertices();
+  const auto next = bm.halfedge_nexts();
+  const auto face = bm.halfedge_faces();
+  const auto out = bm.vertex_halfedges();
+  a.pos.assign(bm.points_mm().begin(), bm.points_mm().end());
   a.next_pos.resize(nv);
   a.cost.resize(nv);
   a.reason.resize(nv);
   a.anchor.resize(nv);
   a.path.resize(nv);
   a.normal.assign(nv, Vec3f::Zero());
-  a.ring_begin.assign(nv + 1, 0);
-  a.ring_vertex.clear();
-  a.ring_face_left.clear();
-  a.ring_face_right.clear();
-  a.ring_vertex.reserve(m.n_halfedges());
-  a.ring_face_left.reserve(m.n_halfedges());
-  a.ring_face_right.reserve(m.n_halfedges());
-  for (auto v : m.vertices()) {
-    const auto& p = m.point(v);
-    const auto i = static_cast<std::size_t>(v.idx());
-    a.pos[i] = Vec3f(p[0], p[1], p[2]);
-    a.cost[i] = bm.state(v).cost;
-    a.reason[i] = bm.state(v).reason;
-    a.anchor[i] = bm.state(v).anchor_mm;
-    a.path[i] = bm.state(v).path_mm;
-    for (auto h : m.voh_range(v)) {
-      a.ring_vertex.push_back(static_cast<std::uint32_t>(m.to_vertex_handle(h).idx()));
-      a.ring_face_left.push_back(static_cast<std::uint32_t>(m.face_handle(h).idx()));
-      a.ring_face_right.push_back(
-          static_cast<std::uint32_t>(m.face_handle(m.opposite_halfedge_handle(h)).idx()));
-    }
-    a.ring_begin[i + 1] = static_cast<std::uint32_t>(a.ring_vertex.size());
+  const auto states = bm.states();
+  for (std::size_t v = 0; v < nv; ++v) {
+    a.cost[v] = states[v].cost;
+    a.reason[v] = states[v].reason;
+    a.anchor[v] = states[v].anchor_mm;
+    a.path[v] = states[v].path_mm;
   }
-  a.tri.resize(m.n_faces());
-  a.face_normal.resize(m.n_faces());
-  for (auto f : m.faces()) {
-    int k = 0;
-    for (auto v : m.fv_range(f)) a.tri[static_cast<std::size_t>(f.idx())][k++] = static_cast<std::uint32_t>(v.idx());
+  a.ring_begin.resize(nv + 1);
+  a.ring_vertex.resize(nh);
+  a.ring_face_left.resize(nh);
+  a.ring_face_right.resize(nh);
+  std::uint32_t r = 0;
+  for (std::size_t v = 0; v < nv; ++v) {
+    a.ring_begin[v] = r;
+    const std::uint32_t start = out[v].idx;
+    std::uint32_t h = start;
+    do {
+      a.ring_vertex[r] = to[h].idx;
+      a.ring_face_left[r] = face[h].idx;
+      a.ring_face_right[r] = face[h ^ 1u].idx;
+      ++r;
+      h = next[h ^ 1u].idx;  // clockwise to the next outgoing halfedge
+    } while (h != start);
+  }
+  a.ring_begin[nv] = r;
+  const auto face_h = bm.face_halfedges();
+  a.tri.resize(nf);
+  a.face_normal.resize(nf);
+  for (std::size_t f = 0; f < nf; ++f) {
+    const std::uint32_t h0 = face_h[f].idx, h1 = next[h0].idx, h2 = next[h1].idx;
+    a.tri[f] = {to[h0].idx, to[h1].idx, to[h2].idx};
   }
 }
 
 void write_back(const Arrays& a, BalloonMesh& bm) {
-  TriMesh& m = bm.mesh();
-  for (auto v : m.vertices()) {
-    const auto i = static_cast<std::size_t>(v.idx());
-    m.set_point(v, OpenMesh::Vec3f(a.pos[i].x(), a.pos[i].y(), a.pos[i].z()));
-    bm.state(v).cost = a.cost[i];
-    bm.state(v).reason = a.reason[i];
-    bm.state(v).anchor_mm = a.anchor[i];
-    bm.state(v).path_mm = a.path[i];
-  }
+  std::copy(a.pos.begin(), a.pos.end(), bm.points_mm().begin());
+  const auto states = bm.states();
+  for (std::size_t v = 0; v < states.size(); ++v)
+    states[v] = {
+        .cost = a.cost[v], .reason = a.reason[v], .anchor_mm = a.anchor[v], .path_mm = a.path[v]};
 }
 
 template <typename F>
@@ -544,7 +552,7 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::G
       if (r == StopReason::Moving) r = StopReason::IterationLimit;
 
   write_back(a, bm);
-  bm.mesh().garbage_collection();
+  bm.garbage_collection();
   stats.front_voxels = marks.grid().marked_count();
   stats.front_grid_bytes = marks.grid().memory_bytes();
   if (stats.leaked) {
@@ -553,10 +561,10 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::G
                         std::to_string(max_vertices) + "); the wall has a gap the balloon "
                         "escaped through, or the seed is not inside a closed target");
   }
-  result.mesh = internal::to_plain_mesh(bm.mesh());
+  result.mesh = internal::to_plain_mesh(bm);
   result.stop.reserve(result.mesh.vertices.size());
-  for (auto v : bm.mesh().vertices()) {
-    const StopReason r = bm.state(v).reason;
+  for (const auto& s : bm.states()) {
+    const StopReason r = s.reason;
     result.stop.push_back(r);
     ++stats.stop_counts[static_cast<std::size_t>(r)];
   }

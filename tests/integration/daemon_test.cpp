@@ -304,8 +304,9 @@ TEST(DaemonRun, FaultsAreAccountedForAndTheDaemonReconnects) {
 
 TEST(DaemonRun, FastSourceIsSkippedNotQueuedAndMemoryStaysFlat) {
   const ScratchDir dir("backpressure");
-  // 60 volumes/s for 2.5 s: far faster than one worker at 48³.
-  auto probe = start_probe(dir, {"--phantom", "sphere", "--size", "48", "--rate", "60", "--count",
+  // 150 volumes/s for 1 s: far faster than one worker at 64³. (At 48³ and 60/s the worker kept
+  // up once the balloon got fast, ~15 ms a volume, and nothing was skipped.)
+  auto probe = start_probe(dir, {"--phantom", "sphere", "--size", "64", "--rate", "150", "--count",
                                  "150"});
   auto daemon = start_daemon(dir, "unix:" + (dir / "probe.sock").string());
   const fs::path out = dir / "out";
