@@ -44,21 +44,29 @@ struct BalloonOptions {
                                   // the paper's plain Ψ_cost.
   float tau_cost = 0.0f;          // τ_cost in the cost's scale (grey levels if !relative_cost);
                                   // 0 = derive from the image around the seed:
-                                  // tau_cost_fraction · (F(tissue level) − F(seed level)).
-  float tau_cost_fraction = 0.5f; // used when tau_cost == 0: this fraction of the rise from the
-                                  // seed level to the tissue level, in the cost's scale
-  float cost_window_vox = 20.0f;   // Departure from the paper's plain sum: Ψ_cost leaks, i.e. each
+                                  // F(seed + tau_cost_fraction · (tissue − seed)) − F(seed).
+  float tau_cost_fraction = 0.5f; // used when tau_cost == 0: the climb to this fraction of the way
+                                  // from the seed level to the tissue level, in grey levels
+                                  // (0.5: the wall's mid level, where a step edge lies after
+                                  // smoothing), measured in the cost's scale F
+  float climb_backstop_fraction = 0.6f;  // P also stops once the image at P has risen above the
+                                  // darkest level on P's path by the climb to this fraction
+                                  // (mapped like tau_cost_fraction): a wall whose rise Ψ_cost
+                                  // under-counted still stops P within it, so a leak never runs
+                                  // on through the tissue
+  float cost_window_vox = 10.0f;  // Departure from the paper's plain sum: Ψ_cost leaks, i.e. each
                                   // step first multiplies it by exp(−|step|/W) (W this window),
                                   // then adds the step's rise. A wall's rise (a few voxels wide
                                   // after smoothing) is kept almost whole, while the speckle
                                   // collected over a long path (the far side of a torus's tube)
                                   // decays instead of adding up to τ_cost. 0 = the plain sum.
-  bool noise_allowance = true;    // P stops when Ψ_cost(P) > τ_cost + ρ·path(P), ρ the rate at
+  bool noise_allowance = false;   // P stops when Ψ_cost(P) > τ_cost + ρ·path(P), ρ the rate at
                                   // which speckle alone raises Ψ_cost inside the target (measured
-                                  // on the rays from the seed), path(P) the distance P travelled.
-                                  // Without it, long paths stop early. false: the plain rule.
-                                  // With a cost window W the allowance is the leaky sum's level
-                                  // for that rate, ρ·W·(1 − exp(−path/W)), at most ρ·W.
+                                  // on the rays from the seed), path(P) the distance P travelled;
+                                  // with a cost window W, ρ·W·(1 − exp(−path/W)). Off by default:
+                                  // the short window bounds what speckle adds, and the allowance
+                                  // let vertices that had passed a wall run on in the tissue
+                                  // (same speckle rate there) and over-shoot by ~0.3 voxel.
   float tau_curv = 1.2f;          // τ_curv: mean over P's edges of H(PQ)/|PQ| (dimensionless;
                                   // = |n₁−n₂|·sin∠, 0 flat, 2 folded back); stop above
   float self_intersection_cos = -0.5f;  // a marked voxel is "the other side" if the normal of
@@ -84,6 +92,7 @@ struct BalloonStats {
   int iterations = 0;
   std::array<int, 5> stop_counts{};  // vertices per StopReason (indexed by its value)
   float tau_cost_used = 0.0f;        // in the cost's scale (grey levels if !relative_cost)
+  float tau_climb_used = 0.0f;       // the climb backstop's threshold, same scale
   float seed_level = 0.0f;           // mean smoothed intensity around the seed
   float seed_sigma = 0.0f;           // its standard deviation
   float tissue_level = 0.0f;         // estimated surrounding tissue level (ray sampling)

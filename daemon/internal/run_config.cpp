@@ -252,6 +252,7 @@ std::optional<std::string> load_config_text(const std::string& text, const std::
     b.boolean("relative_cost", o.relative_cost);
     b.number("tau_cost", o.tau_cost, 0, 1e6);
     b.number("tau_cost_fraction", o.tau_cost_fraction, 0, 1);
+    b.number("climb_backstop_fraction", o.climb_backstop_fraction, 0, 1);
     b.number("cost_window_vox", o.cost_window_vox, 0, 1e4);
     b.boolean("noise_allowance", o.noise_allowance);
     b.number("tau_curv", o.tau_curv, 0, 2);
@@ -342,6 +343,7 @@ std::string to_toml(const RunConfig& c) {
     << "relative_cost = " << (b.relative_cost ? "true" : "false") << "\n"
     << "tau_cost = " << toml_float(b.tau_cost) << "\n"
     << "tau_cost_fraction = " << toml_float(b.tau_cost_fraction) << "\n"
+    << "climb_backstop_fraction = " << toml_float(b.climb_backstop_fraction) << "\n"
     << "cost_window_vox = " << toml_float(b.cost_window_vox) << "  # 0: the paper's plain sum\n"
     << "noise_allowance = " << (b.noise_allowance ? "true" : "false") << "\n"
     << "tau_curv = " << toml_float(b.tau_curv) << "\n"

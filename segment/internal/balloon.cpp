@@ -90,6 +90,7 @@ struct Arrays {
   std::vector<StopReason> reason;
   std::vector<Vec3f> anchor;
   std::vector<float> path;
+  std::vector<float> floor_level;
   std::vector<Vec3f> normal;                      // vertex normals of the last iteration
   std::vector<std::array<std::uint32_t, 3>> tri;
   std::vector<Vec3f> face_normal;
@@ -117,6 +118,7 @@ void extract(const BalloonMesh& bm, Arrays& a) {
   a.reason.resize(nv);
   a.anchor.resize(nv);
   a.path.resize(nv);
+  a.floor_level.resize(nv);
   a.normal.assign(nv, Vec3f::Zero());
   const auto states = bm.states();
   for (std::size_t v = 0; v < nv; ++v) {
@@ -124,6 +126,7 @@ void extract(const BalloonMesh& bm, Arrays& a) {
     a.reason[v] = states[v].reason;
     a.anchor[v] = states[v].anchor_mm;
     a.path[v] = states[v].path_mm;
+    a.floor_level[v] = states[v].floor_level;
   }
   a.ring_begin.resize(nv + 1);
   a.ring_vertex.resize(nh);
@@ -157,7 +160,11 @@ void write_back(const Arrays& a, BalloonMesh& bm) {
   const auto states = bm.states();
   for (std::size_t v = 0; v < states.size(); ++v)
     states[v] = {
-        .cost = a.cost[v], .reason = a.reason[v], .anchor_mm = a.anchor[v], .path_mm = a.path[v]};
+        .cost = a.cost[v],
+        .reason = a.reason[v],
+        .anchor_mm = a.anchor[v],
+        .path_mm = a.path[v],
+        .floor_level = a.floor_level[v]};
 }
 
 template <typename F>
@@ -185,6 +192,8 @@ void check_options(const BalloonOptions& o, float voxel_mm) {
   if (!(o.tau_cost >= 0.0f)) fail("tau_cost must be >= 0 (0 = derive from the image)");
   if (!(o.tau_cost_fraction > 0.0f && o.tau_cost_fraction < 1.0f))
     fail("tau_cost_fraction must be in (0, 1)");
+  if (!(o.climb_backstop_fraction > 0.0f && o.climb_backstop_fraction <= 1.0f))
+    fail("climb_backstop_fraction must be in (0, 1]");
   if (!(o.tau_curv > 0.0f)) fail("tau_curv must be > 0");
   if (!(o.cost_window_vox >= 0.0f)) fail("cost_window_vox must be >= 0 (0 = plain sum)");
   if (!(o.target_edge_vox > 0.0f)) fail("target_edge_vox must be > 0");
@@ -279,10 +288,20 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::G
   // cost's scale. (Mapping a grey-level fraction through the log scale instead, which puts 0.5 at
   // the grey mid level, was measured: with the noise allowance it stops vertices 0.6 voxel
   // outside the wall on average, against 0.44 voxel and half of them inside with this rule.)
-  const float tau_cost =
-      options.tau_cost > 0.0f
-          ? options.tau_cost
-          : options.tau_cost_fraction * (scale.map(seed.tissue_level) - scale.map(seed.level));
+  // τ_cost: the cost of the climb from the seed's level to tau_cost_fraction of the way up to the
+  // tissue level, in grey levels, expressed in the cost's scale. A smoothed step edge lies at the
+  // grey-level mid point; half the *log* rise (the geometric mean of the two levels) lies about
+  // 0.4 voxel inside it, which cost thin tubes a fifth of their volume (64³ torus: 0.82).
+  auto climb_to = [&](float fraction) {
+    return scale.map(seed.level + fraction * contrast) - scale.map(seed.level);
+  };
+  const float tau_cost = options.tau_cost > 0.0f ? options.tau_cost : climb_to(options.tau_cost_fraction);
+  // The climb backstop: how far the image at P has risen above the darkest level on P's path.
+  // Speckle cannot raise it much (it does not accumulate), a wall raises it by the whole contrast,
+  // and a shadowed wall is measured from the shadowed floor. It stops a vertex that got through a
+  // wall with a low Ψ_cost (a dark speckle patch in the wall) before it runs on in the tissue,
+  // where the leaky Ψ_cost of speckle alone stays below τ_cost: a leak.
+  const float tau_climb = std::max(tau_cost, climb_to(options.climb_backstop_fraction));
   // Speckle raises Ψ_cost a little on every step; over a long path (the far side of a torus)
   // that alone would stop vertices before the wall. The allowance adds the rate measured inside
   // the target times the path length to the threshold, so every vertex stops at the same point
@@ -291,6 +310,7 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::G
   const float window_mm = options.cost_window_vox * vox_mm;
   stats.noise_rise_per_mm = seed.noise_rise_per_mm;
   stats.tau_cost_used = tau_cost;
+  stats.tau_climb_used = tau_climb;
 
   // S^0 radius: initial_radius_vox, but inside the rays' safe reach (the sphere must start inside
   // the object) and not below one voxel. (Growing S^0 to fill the homogeneous region around the
@@ -474,20 +494,32 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::G
           a.reason[v] = StopReason::SelfIntersection;  // a type-1 vertex
           continue;
         }
-        // Ψ_cost += max(0, <∇I(S^n), S^{n+1} − S^n>): the rise of intensity along the path.
+        // Ψ_cost += max(0, <∇I, S^{n+1} − S^n>): the rise of intensity along the path, with the
+        // gradient at the step's midpoint (the rise over the step to second order: taken at S^n
+        // it lags on a wall's rising flank, and vertices stopped ~0.2 voxel late).
         float value;
         Vec3f grad;
-        sampler.value_and_gradient(p, value, grad);
+        sampler.value_and_gradient(p + 0.5f * d, value, grad);
         const float step_mm = d.norm();
-        if (window_mm > 0.0f) a.cost[v] *= std::exp(-step_mm / window_mm);  // leaky (see header)
-        a.cost[v] += std::max(0.0f, grad.dot(d)) * scale.weight(value);
-        a.next_pos[v] = target;
+        const float level = scale.map(value);
+        a.floor_level[v] = std::min(a.floor_level[v], level);
+        const float decayed = window_mm > 0.0f ? a.cost[v] * std::exp(-step_mm / window_mm)  // leaky
+                                               : a.cost[v];
+        const float rise = std::max(0.0f, grad.dot(d)) * scale.weight(value);
+        a.cost[v] = decayed + rise;
         moved[v] = 1;
-        a.path[v] += step_mm;
-        const float allowance =
-            window_mm > 0.0f ? noise_per_mm * window_mm * (1.0f - std::exp(-a.path[v] / window_mm))
-                             : noise_per_mm * a.path[v];
-        if (a.cost[v] > tau_cost + allowance) a.reason[v] = StopReason::Boundary;
+        const float path_mm = a.path[v] + step_mm;
+        const float threshold =
+            tau_cost + (window_mm > 0.0f ? noise_per_mm * window_mm * (1.0f - std::exp(-path_mm / window_mm))
+                                         : noise_per_mm * path_mm);
+        // Where Ψ_cost crosses τ_cost inside the step, the vertex stops at the crossing (the rise
+        // taken as even along the step), so where it stops does not depend on the step length.
+        float t = 1.0f;
+        if (a.cost[v] > threshold && rise > 0.0f) t = std::clamp((threshold - decayed) / rise, 0.0f, 1.0f);
+        a.next_pos[v] = p + t * d;
+        a.path[v] += t * step_mm;
+        if (a.cost[v] > threshold || level - a.floor_level[v] > tau_climb)
+          a.reason[v] = StopReason::Boundary;
         else ++local_moving;
       }
       moving_count.fetch_add(local_moving, std::memory_order_relaxed);

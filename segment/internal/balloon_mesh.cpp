@@ -33,6 +33,7 @@ VertexState merged_state(const VertexState& a, const VertexState& b) {
   VertexState s;
   s.cost = 0.5f * (a.cost + b.cost);
   s.path_mm = 0.5f * (a.path_mm + b.path_mm);
+  s.floor_level = std::min(a.floor_level, b.floor_level);
   // method.md §3: a vertex between two stopped vertices is stopped; otherwise it moves on.
   if (a.reason != StopReason::Moving && b.reason != StopReason::Moving)
     s.reason = merged_stop(a.reason, b.reason);
@@ -602,6 +603,7 @@ bool collapse_edge_midpoint(BalloonMesh& bm, Halfedge h, float max_edge_mm) {
     // τ_cost and cycles until the iteration limit.)
     s.cost = std::max(bm.state(v_from).cost, bm.state(v_to).cost);
     s.path_mm = std::max(bm.state(v_from).path_mm, bm.state(v_to).path_mm);
+    s.floor_level = std::min(bm.state(v_from).floor_level, bm.state(v_to).floor_level);
     s.anchor_mm = 0.5f * (bm.state(v_from).anchor_mm + bm.state(v_to).anchor_mm);
   }
   bm.collapse(h);  // v_from disappears into v_to (the paper's COARSENING "melting")

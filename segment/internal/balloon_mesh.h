@@ -33,6 +33,7 @@ struct VertexState {
   StopReason reason = StopReason::Moving;   // Moving while k = 1
   Vec3f anchor_mm = Vec3f::Zero();          // position at the start of the stall window
   float path_mm = 0.0f;                     // length of the path travelled
+  float floor_level = 1e30f;                // darkest level met on the path (cost scale)
 };
 
 inline constexpr std::uint32_t kInvalidIndex = std::numeric_limits<std::uint32_t>::max();
