@@ -29,6 +29,10 @@ struct PipelineConfig {
   /// Reconstruct on a grid of the volume's finest voxel spacing (overrides poisson.cell_mm), as
   /// method.md §5 asks; false keeps poisson.cell_mm.
   bool cell_from_voxel = true;
+  /// The second, short balloon pass from the reconstructed surface back to the boundary
+  /// (segment::reinflate): gives back what the reconstruction's smoothing takes from thin parts.
+  bool reinflate = true;
+  segment::ReinflateOptions reinflate_pass;
   bool want_labels = true;     // label volume on the input grid (inside = 1)
   bool want_indicator = false; // the indicator function χ as a Float32 volume (for .vdb output)
 };
@@ -37,7 +41,7 @@ struct PipelineConfig {
 /// rasterization on the input grid plus the deepest-point search (not one of the paper's stages).
 struct StageTimings {
   double smooth_ms = 0, balloon_ms = 0, opening_ms = 0, reconstruct_ms = 0, mesh_ms = 0,
-         labels_ms = 0, total_ms = 0;
+         reinflate_ms = 0, labels_ms = 0, total_ms = 0;
 };
 
 /// Counts of balloon vertices per stop reason (segment::StopReason, the balloon PLY's codes).

@@ -129,6 +129,28 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed, const volume::Grad
                               const Vec3f& seed_mm, const BalloonOptions& options = {},
                               std::stop_token stop = {});
 
+/// Limits of the second pass (reinflate).
+struct ReinflateOptions {
+  float max_move_vox = 1.5f;  // no vertex moves further: the pass gives back what the
+                              // reconstruction's smoothing took from thin parts (under a voxel),
+                              // it does not segment anew
+  int max_iterations = 12;    // 1.5 vox at the default 0.3 vox per iteration takes 5
+};
+
+/// The paper's remedy for the thin spots where the topology changed (method.md, beyond the
+/// paper): a second, short balloon pass that starts from the reconstructed closed surface (any
+/// genus) and inflates it to the boundary again. The connectivity is fixed (no remeshing), so the
+/// genus stays; the move bound stands in for the self-intersection test. The stop rule and its
+/// thresholds are the first pass's (`first_pass` holds them): each vertex starts with the cost of
+/// the climb from the seed level to where it stands, and one already above the wall's mid level
+/// stays. Stop reasons as for the balloon (IterationLimit: moved max_move_vox).
+/// @throws std::invalid_argument if `surface` is not closed and manifold, if the gradient is not
+///         Float32 on the volume's grid, or if `first_pass` has no seed statistics.
+BalloonResult reinflate(const volume::Volume& smoothed, const volume::Gradient& gradient,
+                        const Mesh& surface, const BalloonStats& first_pass,
+                        const BalloonOptions& options = {}, const ReinflateOptions& pass = {},
+                        std::stop_token stop = {});
+
 /// Convenience: smooths `image` with a Gaussian of `sigma_mm`, takes its gradient, inflates.
 BalloonResult inflate_balloon(const volume::Volume& image, float sigma_mm, const Vec3f& seed_mm,
                               const BalloonOptions& options = {}, std::stop_token stop = {});

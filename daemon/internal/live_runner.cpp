@@ -515,6 +515,7 @@ void LiveRunner::process_one(QueuedVolume item) {
                                   {"opening", result.timings.opening_ms},
                                   {"reconstruct", result.timings.reconstruct_ms},
                                   {"mesh", result.timings.mesh_ms},
+                                  {"reinflate", result.timings.reinflate_ms},
                                   {"total", result.timings.total_ms}};
   line["timings_ms"] = timings;
   if (!result.ok) {
@@ -599,7 +600,8 @@ void LiveRunner::write_one(WriteJob& job) {
         {"balloon", job.timings.balloon_ms},
         {"opening", job.timings.opening_ms},
         {"reconstruct", job.timings.reconstruct_ms},
-        {"mesh", job.timings.mesh_ms}}) {
+        {"mesh", job.timings.mesh_ms},
+        {"reinflate", job.timings.reinflate_ms}}) {
     stats_.add_stage_time(stage, ms);
   }
   spdlog::info("sequence {} processed: genus {}, {:.0f} ms after it arrived", job.sequence, genus,

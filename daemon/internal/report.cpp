@@ -28,7 +28,8 @@ nlohmann::json report_json(const PipelineResult& result, const std::string& inpu
   const StageTimings& t = result.timings;
   report["timings_ms"] = {{"smooth", t.smooth_ms},       {"balloon", t.balloon_ms},
                           {"opening", t.opening_ms},     {"reconstruct", t.reconstruct_ms},
-                          {"mesh", t.mesh_ms},           {"labels", t.labels_ms},
+                          {"mesh", t.mesh_ms},           {"reinflate", t.reinflate_ms},
+                          {"labels", t.labels_ms},
                           {"total", t.total_ms}};
   const StopCounts& s = result.stop_counts;
   report["balloon"] = {{"iterations", result.balloon_iterations},

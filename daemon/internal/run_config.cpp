@@ -239,6 +239,9 @@ std::optional<std::string> load_config_text(const std::string& text, const std::
       }
     }
     r.boolean("cell_from_voxel", p.cell_from_voxel);
+    r.boolean("reinflate", p.reinflate);
+    r.number("reinflate_max_move_vox", p.reinflate_pass.max_move_vox, 1e-3, 20);
+    r.number("reinflate_max_iterations", p.reinflate_pass.max_iterations, 1, 10000);
     r.finish({"balloon", "poisson"});
     if (error.empty()) error = r.error;
 
@@ -333,6 +336,10 @@ std::string to_toml(const RunConfig& c) {
     << "[pipeline]\n"
     << "smooth_sigma_mm = "
     << (p.smooth_sigma_mm ? toml_float(*p.smooth_sigma_mm) : std::string("\"auto\"")) << "\n"
+    << "reinflate = " << (p.reinflate ? "true" : "false")
+    << "  # second balloon pass from the reconstruction back to the wall\n"
+    << "reinflate_max_move_vox = " << toml_float(p.reinflate_pass.max_move_vox) << "\n"
+    << "reinflate_max_iterations = " << p.reinflate_pass.max_iterations << "\n"
     << "cell_from_voxel = " << (p.cell_from_voxel ? "true" : "false")
     << "  # true: poisson.cell_mm = the finest voxel spacing\n\n"
     << "[pipeline.balloon]\n"

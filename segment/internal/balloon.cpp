@@ -58,10 +58,12 @@ class FrontMarks {
 
   // Voxel containing p (voxel centres at integer indices); false outside the volume.
   bool voxel(const Vec3f& p_mm, Vec3i& ijk) const {
-    const Vec3f u = (p_mm - origin_mm_).cwiseProduct(inv_spacing_);
-    ijk = Vec3i(static_cast<int>(std::lround(u.x())), static_cast<int>(std::lround(u.y())),
-                static_cast<int>(std::lround(u.z())));
-    return (ijk.array() >= 0).all() && (ijk.array() < dims_.array()).all();
+    const Vec3f u = (p_mm - origin_mm_).cwiseProduct(inv_spacing_) + Vec3f::Constant(0.5f);
+    if (!(u.array() >= 0.0f).all()) return false;
+    // Truncation is floor here (u >= 0): nearest voxel centre without lround's libm call (3 % of
+    // the balloon's time at 128³).
+    ijk = u.cast<int>();
+    return (ijk.array() < dims_.array()).all();
   }
 
   // True if the voxel at p was swept by a front whose normal opposes n (cosine < cos_limit).
@@ -179,6 +181,54 @@ void parallel_for(tbb::task_arena& arena, bool serial, std::size_t n, F&& f) {
   });
 }
 
+// The boundary cost's stop rule (method.md §2 and the departures documented in segment.h),
+// shared by the first pass and the re-inflation.
+struct CostRule {
+  internal::CostScale scale;
+  float tau = 0.0f;           // τ_cost
+  float tau_climb = 0.0f;     // the climb backstop
+  float window_mm = 0.0f;     // 0: the plain sum
+  float noise_per_mm = 0.0f;  // 0: no noise allowance
+
+  // Advances one vertex by the Euler step d from p: its Ψ_cost, darkest level and path. Returns
+  // the fraction of d to take (1 unless it stops inside the step) and sets `stopped`.
+  float advance(const ImageSampler& sampler, const Vec3f& p, const Vec3f& d, float& cost,
+                float& floor_level, float& path_mm, bool& stopped) const {
+    // Ψ_cost += max(0, <∇I, S^{n+1} − S^n>): the rise of intensity along the path, with the
+    // gradient at the step's midpoint (the rise over the step to second order: taken at S^n it
+    // lags on a wall's rising flank, and vertices stopped ~0.2 voxel late).
+    float value;
+    Vec3f grad;
+    sampler.value_and_gradient(p + 0.5f * d, value, grad);
+    const float step_mm = d.norm();
+    const float level = scale.map(value);
+    floor_level = std::min(floor_level, level);
+    const float decayed = window_mm > 0.0f ? cost * std::exp(-step_mm / window_mm) : cost;  // leaky
+    const float rise = std::max(0.0f, grad.dot(d)) * scale.weight(value);
+    cost = decayed + rise;
+    const float travelled_mm = path_mm + step_mm;
+    const float threshold =
+        tau + (window_mm > 0.0f ? noise_per_mm * window_mm * (1.0f - std::exp(-travelled_mm / window_mm))
+                                : noise_per_mm * travelled_mm);
+    // Where Ψ_cost crosses τ_cost inside the step, the vertex stops at the crossing (the rise
+    // taken as even along the step), so where it stops does not depend on the step length.
+    float t = 1.0f;
+    if (cost > threshold && rise > 0.0f) t = std::clamp((threshold - decayed) / rise, 0.0f, 1.0f);
+    path_mm += t * step_mm;
+    stopped = cost > threshold || level - floor_level > tau_climb;
+    return t;
+  }
+};
+
+// The sampler reads Float32 directly: other types (an unsmoothed UInt8 volume) are converted once
+// into `storage`.
+const volume::Volume* as_float32(const volume::Volume& v, volume::Volume& storage) {
+  if (v.type() == volume::VoxelType::Float32) return &v;
+  storage = volume::Volume(v.dims(), v.spacing_mm(), v.origin_mm(), volume::VoxelType::Float32);
+  storage.f32() = v.to_float();
+  return &storage;
+}
+
 void check_options(const BalloonOptions& o, float voxel_mm) {
   (void)voxel_mm;
   auto fail = [](const std::string& what) { throw std::invalid_argument("BalloonOptions: " + what); };
@@ -238,15 +288,8 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::G
   const float vox_mm = smoothed_in.spacing_mm().minCoeff();
   check_options(options, vox_mm);
 
-  // The sampler reads Float32 directly; convert other types once.
   volume::Volume converted;
-  const volume::Volume* smoothed = &smoothed_in;
-  if (smoothed_in.type() != volume::VoxelType::Float32) {
-    converted = volume::Volume(smoothed_in.dims(), smoothed_in.spacing_mm(), smoothed_in.origin_mm(),
-                               volume::VoxelType::Float32);
-    converted.f32() = smoothed_in.to_float();
-    smoothed = &converted;
-  }
+  const volume::Volume* smoothed = as_float32(smoothed_in, converted);
   const ImageSampler sampler(*smoothed, gradient);
 
   BalloonResult result;
@@ -284,10 +327,6 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::G
         " (" + std::to_string(seed.rays_hit) + "/" + std::to_string(seed.rays) +
         " rays reach a brighter wall)");
   }
-  // τ_cost: tau_cost_fraction of the rise from the seed's level to the tissue level, in the
-  // cost's scale. (Mapping a grey-level fraction through the log scale instead, which puts 0.5 at
-  // the grey mid level, was measured: with the noise allowance it stops vertices 0.6 voxel
-  // outside the wall on average, against 0.44 voxel and half of them inside with this rule.)
   // τ_cost: the cost of the climb from the seed's level to tau_cost_fraction of the way up to the
   // tissue level, in grey levels, expressed in the cost's scale. A smoothed step edge lies at the
   // grey-level mid point; half the *log* rise (the geometric mean of the two levels) lies about
@@ -306,8 +345,11 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::G
   // that alone would stop vertices before the wall. The allowance adds the rate measured inside
   // the target times the path length to the threshold, so every vertex stops at the same point
   // of the wall's rise however far it travelled.
-  const float noise_per_mm = options.noise_allowance ? seed.noise_rise_per_mm : 0.0f;
-  const float window_mm = options.cost_window_vox * vox_mm;
+  const CostRule cost{.scale = scale,
+                      .tau = tau_cost,
+                      .tau_climb = tau_climb,
+                      .window_mm = options.cost_window_vox * vox_mm,
+                      .noise_per_mm = options.noise_allowance ? seed.noise_rise_per_mm : 0.0f};
   stats.noise_rise_per_mm = seed.noise_rise_per_mm;
   stats.tau_cost_used = tau_cost;
   stats.tau_climb_used = tau_climb;
@@ -494,32 +536,11 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::G
           a.reason[v] = StopReason::SelfIntersection;  // a type-1 vertex
           continue;
         }
-        // Ψ_cost += max(0, <∇I, S^{n+1} − S^n>): the rise of intensity along the path, with the
-        // gradient at the step's midpoint (the rise over the step to second order: taken at S^n
-        // it lags on a wall's rising flank, and vertices stopped ~0.2 voxel late).
-        float value;
-        Vec3f grad;
-        sampler.value_and_gradient(p + 0.5f * d, value, grad);
-        const float step_mm = d.norm();
-        const float level = scale.map(value);
-        a.floor_level[v] = std::min(a.floor_level[v], level);
-        const float decayed = window_mm > 0.0f ? a.cost[v] * std::exp(-step_mm / window_mm)  // leaky
-                                               : a.cost[v];
-        const float rise = std::max(0.0f, grad.dot(d)) * scale.weight(value);
-        a.cost[v] = decayed + rise;
-        moved[v] = 1;
-        const float path_mm = a.path[v] + step_mm;
-        const float threshold =
-            tau_cost + (window_mm > 0.0f ? noise_per_mm * window_mm * (1.0f - std::exp(-path_mm / window_mm))
-                                         : noise_per_mm * path_mm);
-        // Where Ψ_cost crosses τ_cost inside the step, the vertex stops at the crossing (the rise
-        // taken as even along the step), so where it stops does not depend on the step length.
-        float t = 1.0f;
-        if (a.cost[v] > threshold && rise > 0.0f) t = std::clamp((threshold - decayed) / rise, 0.0f, 1.0f);
+        bool stopped = false;
+        const float t = cost.advance(sampler, p, d, a.cost[v], a.floor_level[v], a.path[v], stopped);
         a.next_pos[v] = p + t * d;
-        a.path[v] += t * step_mm;
-        if (a.cost[v] > threshold || level - a.floor_level[v] > tau_climb)
-          a.reason[v] = StopReason::Boundary;
+        moved[v] = 1;
+        if (stopped) a.reason[v] = StopReason::Boundary;
         else ++local_moving;
       }
       moving_count.fetch_add(local_moving, std::memory_order_relaxed);
@@ -601,6 +622,121 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::G
     ++stats.stop_counts[static_cast<std::size_t>(r)];
   }
   result.converged = all_stopped || stats.stalled;
+  stats.elapsed_ms =
+      std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+  return result;
+}
+
+BalloonResult reinflate(const volume::Volume& smoothed_in, const volume::Gradient& gradient,
+                        const Mesh& surface, const BalloonStats& first_pass,
+                        const BalloonOptions& options, const ReinflateOptions& pass,
+                        std::stop_token stop) {
+  const auto t0 = std::chrono::steady_clock::now();
+  if (smoothed_in.empty()) throw std::invalid_argument("reinflate: empty volume");
+  for (const volume::Volume* g : {&gradient.gx, &gradient.gy, &gradient.gz})
+    if (g->dims() != smoothed_in.dims() || g->type() != volume::VoxelType::Float32)
+      throw std::invalid_argument("reinflate: gradient must be Float32 on the volume's grid");
+  if (!(first_pass.tissue_level > first_pass.seed_level))
+    throw std::invalid_argument("reinflate: first_pass holds no seed statistics (a balloon that ran)");
+  if (!(pass.max_move_vox > 0.0f) || pass.max_iterations < 1)
+    throw std::invalid_argument("reinflate: max_move_vox must be > 0 and max_iterations >= 1");
+  const float vox_mm = smoothed_in.spacing_mm().minCoeff();
+  check_options(options, vox_mm);
+  volume::Volume converted;
+  const volume::Volume& smoothed = *as_float32(smoothed_in, converted);
+  const ImageSampler sampler(smoothed, gradient);
+
+  BalloonMesh bm;
+  internal::from_plain_mesh(surface, bm);
+  for (std::uint32_t h = 0; h < bm.n_halfedges(); ++h)
+    if (bm.is_boundary(internal::Halfedge{h}))
+      throw std::invalid_argument("reinflate: the surface is not closed");
+  Arrays a;
+  extract(bm, a);
+
+  // The first pass's rule, seed statistics and thresholds: both passes stop at the same level.
+  internal::CostScale scale;
+  if (options.relative_cost) {
+    scale.relative = true;
+    scale.floor = std::max(1e-3f, 0.1f * first_pass.tissue_level);
+  }
+  const CostRule cost{.scale = scale,
+                      .tau = first_pass.tau_cost_used,
+                      .tau_climb = first_pass.tau_climb_used,
+                      .window_mm = options.cost_window_vox * vox_mm,
+                      .noise_per_mm = options.noise_allowance ? first_pass.noise_rise_per_mm : 0.0f};
+  const float seed_level = scale.map(first_pass.seed_level);
+  const float mid_level = scale.map(0.5f * (first_pass.seed_level + first_pass.tissue_level));
+  // Each vertex starts as if it had climbed from the seed's level to where it stands (Ψ_cost is
+  // what a path from inside has climbed), so a vertex part-way up the wall climbs only the rest.
+  // A vertex already above the wall's mid level is at or past the wall: it stays.
+  for (std::size_t v = 0; v < a.pos.size(); ++v) {
+    const float level = scale.map(sampler.value(a.pos[v]));
+    a.cost[v] = std::max(0.0f, level - seed_level);
+    a.floor_level[v] = std::min(level, seed_level);
+    a.path[v] = 0.0f;
+    a.reason[v] = level >= mid_level ? StopReason::Boundary : StopReason::Moving;
+  }
+
+  BalloonResult result;
+  BalloonStats& stats = result.stats;
+  stats.seed_level = first_pass.seed_level;
+  stats.tissue_level = first_pass.tissue_level;
+  stats.tau_cost_used = first_pass.tau_cost_used;
+  stats.tau_climb_used = first_pass.tau_climb_used;
+  const float h = options.time_step, lambda = options.umbrella_weight;
+  const float mu_mm = options.inflation_vox * vox_mm, max_move_mm = pass.max_move_vox * vox_mm;
+  const Vec3f box_lo = smoothed.min_mm() + Vec3f::Constant(0.5f * vox_mm);
+  const Vec3f box_hi = smoothed.max_mm() - Vec3f::Constant(0.5f * vox_mm);
+  // Serial: a short pass over a mesh that is mostly stopped from the start.
+  int it = 0, moving = 0;
+  for (it = 1; it <= pass.max_iterations; ++it) {
+    if (stop.stop_requested()) {
+      stats.cancelled = true;
+      break;
+    }
+    for (std::size_t f = 0; f < a.tri.size(); ++f) {
+      const auto& t = a.tri[f];
+      const Vec3f n = (a.pos[t[1]] - a.pos[t[0]]).cross(a.pos[t[2]] - a.pos[t[0]]);
+      const float len = n.norm();
+      a.face_normal[f] = len > 0.0f ? Vec3f(n / len) : Vec3f::Zero();
+    }
+    moving = 0;
+    for (std::size_t v = 0; v < a.pos.size(); ++v) {
+      a.next_pos[v] = a.pos[v];
+      if (a.reason[v] != StopReason::Moving) continue;
+      const Vec3f p = a.pos[v];
+      Vec3f n = Vec3f::Zero(), centroid = Vec3f::Zero();
+      for (std::uint32_t r = a.ring_begin[v]; r < a.ring_begin[v + 1]; ++r) {
+        n += a.face_normal[a.ring_face_left[r]];  // equation (2)
+        centroid += a.pos[a.ring_vertex[r]];
+      }
+      if (n.norm() > 0.0f) n.normalize();
+      const Vec3f umbrella = centroid / static_cast<float>(a.ring_begin[v + 1] - a.ring_begin[v]) - p;
+      const Vec3f d = h * (lambda * umbrella + mu_mm * n);
+      const Vec3f target = p + d;
+      if ((target.array() < box_lo.array()).any() || (target.array() > box_hi.array()).any()) {
+        a.reason[v] = StopReason::Boundary;
+        continue;
+      }
+      bool stopped = false;
+      const float t = cost.advance(sampler, p, d, a.cost[v], a.floor_level[v], a.path[v], stopped);
+      a.next_pos[v] = p + t * d;
+      if (stopped) a.reason[v] = StopReason::Boundary;
+      else if (a.path[v] >= max_move_mm) a.reason[v] = StopReason::IterationLimit;  // moved its most
+      else ++moving;
+    }
+    std::swap(a.pos, a.next_pos);
+    if (moving == 0) break;
+  }
+  stats.iterations = std::min(it, pass.max_iterations);
+  for (auto& r : a.reason)
+    if (r == StopReason::Moving) r = StopReason::IterationLimit;
+  result.mesh.vertices = a.pos;
+  result.mesh.triangles = surface.triangles;
+  result.stop = a.reason;
+  for (const StopReason r : a.reason) ++stats.stop_counts[static_cast<std::size_t>(r)];
+  result.converged = moving == 0;
   stats.elapsed_ms =
       std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
   return result;

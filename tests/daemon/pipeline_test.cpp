@@ -20,9 +20,8 @@ class PipelineOnPhantom : public ::testing::TestWithParam<Case> {};
 TEST_P(PipelineOnPhantom, RecoversTopologyAndShape) {
   const Case c = GetParam();
   // 96³ with the simulator's default speckle (0.5) and contrast: small enough for CI, noisy
-  // enough that the smoothing and the boundary cost matter. At 64³ the balloon still fails two
-  // cases (cyst-needle: the 2.5-voxel needle tunnel closes, genus 0; double-torus: Dice 0.84, the
-  // 4.7-voxel tube is under-segmented); docs/results.md tracks them until the balloon is fixed.
+  // enough that the smoothing and the boundary cost matter. Dice >= 0.95 is the accuracy target;
+  // measured over speckle seeds 1-4 at 96³ the lowest is 0.963 (docs/results.md).
   const sim::Phantom phantom = sim::make_phantom({.phantom = c.phantom, .size_vox = 96});
   ASSERT_EQ(phantom.genus, c.genus);
   ASSERT_EQ(check_seed(phantom.image, phantom.seed_mm), std::nullopt);
@@ -35,7 +34,7 @@ TEST_P(PipelineOnPhantom, RecoversTopologyAndShape) {
   EXPECT_GT(result.enclosed_volume_ml, 0.0);
 
   ASSERT_TRUE(result.labels.has_value());
-  EXPECT_GE(internal::dice(*result.labels, phantom.truth), 0.90);
+  EXPECT_GE(internal::dice(*result.labels, phantom.truth), 0.95);
 
   // Seed tracking: the deepest interior point is inside the truth.
   ASSERT_TRUE(result.deepest_interior_mm.has_value());
@@ -45,8 +44,9 @@ TEST_P(PipelineOnPhantom, RecoversTopologyAndShape) {
   // Every balloon vertex has a stop reason; the stage timings add up to at most the total.
   EXPECT_EQ(result.balloon_stop.size(), result.balloon.vertices.size());
   const StageTimings& t = result.timings;
-  EXPECT_LE(t.smooth_ms + t.balloon_ms + t.opening_ms + t.reconstruct_ms + t.mesh_ms,
+  EXPECT_LE(t.smooth_ms + t.balloon_ms + t.opening_ms + t.reconstruct_ms + t.mesh_ms + t.reinflate_ms,
             t.total_ms + 1e-6);
+  EXPECT_GT(t.reinflate_ms, 0.0) << "the second balloon pass ran";
 }
 
 INSTANTIATE_TEST_SUITE_P(Phantoms, PipelineOnPhantom,

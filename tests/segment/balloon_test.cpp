@@ -302,3 +302,95 @@ TEST(Balloon, WorksOnAnisotropicSpacing) {
   EXPECT_LE(far, static_cast<int>(r.mesh.vertices.size()) / 50);
   EXPECT_EQ(segment::euler_characteristic(r.mesh), 2);
 }
+
+namespace {
+
+// A closed torus (genus 1) about the z axis through `centre`: `rings` x `sides` quads, split.
+segment::Mesh torus_mesh(const Vec3f& centre, float major_mm, float tube_mm, int rings = 96, int sides = 32) {
+  segment::Mesh m;
+  for (int i = 0; i < rings; ++i)
+    for (int j = 0; j < sides; ++j) {
+      const float u = 2.0f * static_cast<float>(M_PI) * i / rings, w = 2.0f * static_cast<float>(M_PI) * j / sides;
+      const float r = major_mm + tube_mm * std::cos(w);
+      m.vertices.push_back(centre + Vec3f(r * std::cos(u), r * std::sin(u), tube_mm * std::sin(w)));
+    }
+  auto at = [&](int i, int j) { return static_cast<std::uint32_t>((i % rings) * sides + (j % sides)); };
+  for (int i = 0; i < rings; ++i)
+    for (int j = 0; j < sides; ++j) {  // counter-clockwise seen from outside
+      m.triangles.push_back({at(i, j), at(i + 1, j), at(i + 1, j + 1)});
+      m.triangles.push_back({at(i, j), at(i + 1, j + 1), at(i, j + 1)});
+    }
+  return m;
+}
+
+// Mean and worst distance of the vertices from the torus's true tube wall, in voxels.
+std::pair<float, float> tube_wall_error_vox(const segment::Mesh& m, const Vec3f& centre, float major_mm,
+                                            float tube_mm, float vox_mm) {
+  double sum = 0.0;
+  float worst = 0.0f;
+  for (const auto& v : m.vertices) {
+    const Vec3f q = v - centre;
+    const float ring = std::hypot(q.x(), q.y()) - major_mm;
+    const float e = std::abs(std::hypot(ring, q.z()) - tube_mm) / vox_mm;
+    sum += e;
+    worst = std::max(worst, e);
+  }
+  return {static_cast<float>(sum / m.vertices.size()), worst};
+}
+
+}  // namespace
+
+TEST(Reinflate, GivesAThinnedTorusBackItsWallAndKeepsItsGenus) {
+  // What the reconstruction's smoothing does to a thin tube: the surface sits inside the wall.
+  // The second pass must bring it back to the wall without changing the topology.
+  const Prepared p = prepare("torus", 64);
+  const auto first = segment::inflate_balloon(p.smoothed, p.gradient, p.phantom.seed_mm);
+  ASSERT_EQ(first.error, "");
+  // The simulator's torus (sim/internal/shapes.cpp): major 0.42 R, tube 0.2 R, R the half extent.
+  const Vec3f centre = 0.5f * (p.phantom.image.min_mm() + p.phantom.image.max_mm());
+  const float half_mm = 0.5f * (p.phantom.image.max_mm().x() - p.phantom.image.min_mm().x());
+  const float major_mm = 0.42f * half_mm, tube_mm = 0.2f * half_mm;
+  const segment::Mesh thinned = torus_mesh(centre, major_mm, tube_mm - 1.0f * p.vox_mm);
+  const auto before = tube_wall_error_vox(thinned, centre, major_mm, tube_mm, p.vox_mm);
+
+  const auto second = segment::reinflate(p.smoothed, p.gradient, thinned, first.stats);
+  ASSERT_EQ(second.mesh.vertices.size(), thinned.vertices.size());
+  EXPECT_EQ(second.mesh.triangles, thinned.triangles) << "connectivity, and with it the genus, stays";
+  EXPECT_EQ(segment::euler_characteristic(second.mesh), 0);
+  const auto after = tube_wall_error_vox(second.mesh, centre, major_mm, tube_mm, p.vox_mm);
+  EXPECT_NEAR(before.first, 1.0f, 0.05f);
+  EXPECT_LT(after.first, 0.5f) << "mean distance to the wall, voxels";
+  EXPECT_LT(after.second, 1.6f) << "no vertex moved further than the bound (1.5 voxels)";
+  float moved_most_vox = 0.0f;
+  for (std::size_t i = 0; i < thinned.vertices.size(); ++i)
+    moved_most_vox = std::max(moved_most_vox, (second.mesh.vertices[i] - thinned.vertices[i]).norm() / p.vox_mm);
+  EXPECT_LE(moved_most_vox, 1.5f + 0.31f);  // the bound, plus the last step that reached it
+  EXPECT_GE(second.stats.stop_counts[static_cast<std::size_t>(StopReason::Boundary)],
+            static_cast<int>(0.9 * second.mesh.vertices.size()))
+      << "nearly all stop on the wall, not at the move bound";
+}
+
+TEST(Reinflate, LeavesASurfaceOnTheWallWhereItIs) {
+  const Prepared p = prepare("torus", 64);
+  const auto first = segment::inflate_balloon(p.smoothed, p.gradient, p.phantom.seed_mm);
+  ASSERT_EQ(first.error, "");
+  const Vec3f centre = 0.5f * (p.phantom.image.min_mm() + p.phantom.image.max_mm());
+  const float half_mm = 0.5f * (p.phantom.image.max_mm().x() - p.phantom.image.min_mm().x());
+  // Half a voxel outside the wall: already past the mid level, so nothing may move outwards.
+  const segment::Mesh outside = torus_mesh(centre, 0.42f * half_mm, 0.2f * half_mm + 0.5f * p.vox_mm);
+  const auto second = segment::reinflate(p.smoothed, p.gradient, outside, first.stats);
+  const auto before = tube_wall_error_vox(outside, centre, 0.42f * half_mm, 0.2f * half_mm, p.vox_mm);
+  const auto after = tube_wall_error_vox(second.mesh, centre, 0.42f * half_mm, 0.2f * half_mm, p.vox_mm);
+  EXPECT_LE(after.first, before.first + 0.1f);
+}
+
+TEST(Reinflate, RefusesAnOpenSurface) {
+  const Prepared p = prepare("sphere", 48);
+  const auto first = segment::inflate_balloon(p.smoothed, p.gradient, p.phantom.seed_mm);
+  ASSERT_EQ(first.error, "");
+  segment::Mesh open = first.mesh;
+  open.triangles.pop_back();
+  EXPECT_THROW(segment::reinflate(p.smoothed, p.gradient, open, first.stats), std::invalid_argument);
+  EXPECT_THROW(segment::reinflate(p.smoothed, p.gradient, first.mesh, segment::BalloonStats{}),
+               std::invalid_argument);
+}
