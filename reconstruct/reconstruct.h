@@ -12,6 +12,7 @@
 #include <array>
 #include <cstdint>
 #include <filesystem>
+#include <limits>
 #include <optional>
 #include <string>
 #include <vector>
@@ -56,6 +57,15 @@ struct PoissonOptions {
   float cell_mm = 0.5f;            // grid cell edge; pass the volume's voxel size
   float padding_fraction = 0.15f;  // margin per side, fraction of the largest extent; >= 0.10
   float smoothing_cells = 1.0f;    // Gaussian sigma applied to the splatted normals, in cells
+  // Thin features. The trilinear splat and the Gaussian blur χ over ~2.5 cells (full width at half
+  // maximum, smoothing_cells = 1): a gap or a solid about that narrow is lost (a needle's tunnel
+  // closes, a thin tube pinches off). The cell shrinks below cell_mm until the narrowest feature
+  // of the samples (narrowest_feature_mm, counted once it covers 8 cells² of cell_mm) spans this
+  // many cells; at 4 the middle of a tunnel stays well below the iso-value. Raise it with
+  // smoothing_cells. 0 = always cell_mm.
+  float min_feature_cells = 4.0f;
+  float min_cell_fraction = 1.0f / 3.0f;  // the thin-feature cell stops at this fraction of
+                                          // cell_mm (so at most 27x the cells), in [0.1, 1]
   int max_grid_dim = 256;          // the cell grows when an axis would need more cells than this
   int fft_threads = 2;             // FFTW threads (the target machine has two cores)
   DivergenceMode divergence = DivergenceMode::Spectral;
@@ -66,13 +76,29 @@ struct PoissonOptions {
 struct IndicatorGrid {
   volume::Volume chi;    // Float32; origin/spacing of the FFT grid (write with volume::write_vdb)
   float iso = 0.0f;      // area-weighted mean of χ at the sample positions
-  float cell_mm = 0.0f;  // the cell actually used (options.cell_mm unless max_grid_dim forced more)
+  float cell_mm = 0.0f;  // the cell actually used: options.cell_mm, finer for a thin feature,
+                         // coarser where max_grid_dim forced it
+  float feature_mm = std::numeric_limits<float>::infinity();  // narrowest feature found; infinity:
+                         // none within min_feature_cells · cell_mm (or the search is off)
 };
+
+/// Narrowest feature the oriented samples describe, in mm. A sample's local width is the distance
+/// along its normal to the nearest sample that faces it across empty space (a gap: the tunnel of a
+/// needle through a cyst) or backs onto it across the solid (a thin tube), counting only pairs
+/// with roughly opposite normals that each lie within the other's normal cone (half-angle ~27°),
+/// so that the walls of a wedge, which meet at an edge, mostly do not count. The result is the
+/// smallest width w whose samples (local width <= w) carry at least min_area_mm2 of area, or
+/// +infinity if no width up to max_width_mm does. Cost: near-linear (a bucket grid of
+/// max_width_mm), both cores.
+/// @throws std::invalid_argument on mismatched arrays, non-finite samples, max_width_mm <= 0 or a
+///         negative min_area_mm2.
+float narrowest_feature_mm(const PointCloud& samples, float max_width_mm, float min_area_mm2);
 
 /// Solves Δχ = ∇·V for the area-weighted, Gaussian-smoothed normal field V by FFT (Kazhdan 2005):
 /// χ̂(k) = i k·V̂(k) / |k|², χ̂(0) = 0, sign chosen so that χ is larger inside. The grid is the
 /// bounding box of the points padded by options.padding_fraction on each side, its dimensions
-/// rounded up to 2^a 3^b 5^c. FFTW plans are cached per grid size (thread-safe).
+/// rounded up to 2^a 3^b 5^c, its cell options.cell_mm or finer where a thin feature needs it
+/// (PoissonOptions::min_feature_cells). FFTW plans are cached per grid size (thread-safe).
 /// @throws std::invalid_argument on empty or mismatched arrays, non-finite samples, or options
 ///         out of range (cell_mm <= 0, padding_fraction < 0.1, smoothing_cells < 0, ...).
 IndicatorGrid poisson_indicator(const PointCloud& samples, const PoissonOptions& options = {});
@@ -122,6 +148,7 @@ struct SurfaceResult {
   volume::Volume indicator;  // χ on the FFT grid (Float32)
   float iso = 0.0f;
   float cell_mm = 0.0f;
+  float feature_mm = std::numeric_limits<float>::infinity();  // as IndicatorGrid::feature_mm
   std::array<int, 3> grid_dims{};
   int components_before_selection = 0;  // components marching cubes produced
   bool seed_enclosed = false;           // false: fell back to the largest component

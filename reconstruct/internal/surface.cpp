@@ -24,6 +24,7 @@ SurfaceResult reconstruct_surface(const PointCloud& samples, const Vec3f& seed_m
   r.topology = analyze_topology(r.mesh);
   r.iso = grid.iso;
   r.cell_mm = grid.cell_mm;
+  r.feature_mm = grid.feature_mm;
   r.grid_dims = {grid.chi.dims().x(), grid.chi.dims().y(), grid.chi.dims().z()};
   r.indicator = std::move(grid.chi);
   r.reconstruct_ms = ms(t1 - t0);

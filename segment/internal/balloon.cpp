@@ -207,9 +207,10 @@ struct CostRule {
     const float rise = std::max(0.0f, grad.dot(d)) * scale.weight(value);
     cost = decayed + rise;
     const float travelled_mm = path_mm + step_mm;
-    const float threshold =
-        tau + (window_mm > 0.0f ? noise_per_mm * window_mm * (1.0f - std::exp(-travelled_mm / window_mm))
-                                : noise_per_mm * travelled_mm);
+    float threshold = tau;
+    if (noise_per_mm > 0.0f)
+      threshold += window_mm > 0.0f ? noise_per_mm * window_mm * (1.0f - std::exp(-travelled_mm / window_mm))
+                                    : noise_per_mm * travelled_mm;
     // Where Ψ_cost crosses τ_cost inside the step, the vertex stops at the crossing (the rise
     // taken as even along the step), so where it stops does not depend on the step length.
     float t = 1.0f;

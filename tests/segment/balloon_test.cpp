@@ -186,12 +186,13 @@ TEST(Balloon, CystNeedleWrapsAroundTheNeedleWithoutLeaking) {
   // The deep half of the cyst lies in the needle's shadow (the needle enters from above).
   for (const auto& v : r.mesh.vertices)
     if (v.z() > centre.z() + 0.2f * (p.phantom.image.max_mm().z() - centre.z())) ++checked_below_needle;
-  // Spec: within one voxel of the cyst everywhere. Measured at 80^3: a handful of vertices in the
-  // needle's shadow reach ~2.2 voxels (against staircase samples), so the bound asserted here is
-  // "at most 1 % beyond 1.5 voxels, none beyond 3" until the shadowed wall is handled better.
+  // Spec: within one voxel of the cyst everywhere. Measured at 80^3 (deterministic: same vertices
+  // on any thread count): 11 of 2287 vertices, near the deep wall in the needle's shadow, are
+  // beyond 1.5 voxels of the staircase samples, the worst 2.0. So the bound asserted here is
+  // "at most 1 % beyond 1.5 voxels, none beyond 2.5" until the shadowed wall is handled better.
   EXPECT_LE(outside_far, static_cast<int>(r.mesh.vertices.size()) / 100)
       << "worst " << worst_vox << " voxels outside the cyst";
-  EXPECT_LE(worst_vox, 3.0f);
+  EXPECT_LE(worst_vox, 2.5f);
   EXPECT_GT(checked_below_needle, 50) << "the balloon reached the shadowed deep wall";
 }
 
