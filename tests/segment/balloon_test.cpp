@@ -339,6 +339,17 @@ std::pair<float, float> tube_wall_error_vox(const segment::Mesh& m, const Vec3f&
   return {static_cast<float>(sum / m.vertices.size()), worst};
 }
 
+// The simulator's torus (sim/internal/shapes.cpp): axis z through the volume's centre, major
+// radius 0.42 R and tube 0.2 R, R the half extent.
+struct SimTorus {
+  Vec3f centre;
+  float major_mm, tube_mm;
+  explicit SimTorus(const volume::Volume& image)
+      : centre(0.5f * (image.min_mm() + image.max_mm())),
+        major_mm(0.42f * 0.5f * (image.max_mm().x() - image.min_mm().x())),
+        tube_mm(0.2f * 0.5f * (image.max_mm().x() - image.min_mm().x())) {}
+};
+
 }  // namespace
 
 TEST(Reinflate, GivesAThinnedTorusBackItsWallAndKeepsItsGenus) {
@@ -347,18 +358,15 @@ TEST(Reinflate, GivesAThinnedTorusBackItsWallAndKeepsItsGenus) {
   const Prepared p = prepare("torus", 64);
   const auto first = segment::inflate_balloon(p.smoothed, p.gradient, p.phantom.seed_mm);
   ASSERT_EQ(first.error, "");
-  // The simulator's torus (sim/internal/shapes.cpp): major 0.42 R, tube 0.2 R, R the half extent.
-  const Vec3f centre = 0.5f * (p.phantom.image.min_mm() + p.phantom.image.max_mm());
-  const float half_mm = 0.5f * (p.phantom.image.max_mm().x() - p.phantom.image.min_mm().x());
-  const float major_mm = 0.42f * half_mm, tube_mm = 0.2f * half_mm;
-  const segment::Mesh thinned = torus_mesh(centre, major_mm, tube_mm - 1.0f * p.vox_mm);
-  const auto before = tube_wall_error_vox(thinned, centre, major_mm, tube_mm, p.vox_mm);
+  const SimTorus t(p.phantom.image);
+  const segment::Mesh thinned = torus_mesh(t.centre, t.major_mm, t.tube_mm - 1.0f * p.vox_mm);
+  const auto before = tube_wall_error_vox(thinned, t.centre, t.major_mm, t.tube_mm, p.vox_mm);
 
   const auto second = segment::reinflate(p.smoothed, p.gradient, thinned, first.stats);
   ASSERT_EQ(second.mesh.vertices.size(), thinned.vertices.size());
   EXPECT_EQ(second.mesh.triangles, thinned.triangles) << "connectivity, and with it the genus, stays";
   EXPECT_EQ(segment::euler_characteristic(second.mesh), 0);
-  const auto after = tube_wall_error_vox(second.mesh, centre, major_mm, tube_mm, p.vox_mm);
+  const auto after = tube_wall_error_vox(second.mesh, t.centre, t.major_mm, t.tube_mm, p.vox_mm);
   EXPECT_NEAR(before.first, 1.0f, 0.05f);
   EXPECT_LT(after.first, 0.5f) << "mean distance to the wall, voxels";
   EXPECT_LT(after.second, 1.6f) << "no vertex moved further than the bound (1.5 voxels)";
@@ -375,13 +383,12 @@ TEST(Reinflate, LeavesASurfaceOnTheWallWhereItIs) {
   const Prepared p = prepare("torus", 64);
   const auto first = segment::inflate_balloon(p.smoothed, p.gradient, p.phantom.seed_mm);
   ASSERT_EQ(first.error, "");
-  const Vec3f centre = 0.5f * (p.phantom.image.min_mm() + p.phantom.image.max_mm());
-  const float half_mm = 0.5f * (p.phantom.image.max_mm().x() - p.phantom.image.min_mm().x());
+  const SimTorus t(p.phantom.image);
   // Half a voxel outside the wall: already past the mid level, so nothing may move outwards.
-  const segment::Mesh outside = torus_mesh(centre, 0.42f * half_mm, 0.2f * half_mm + 0.5f * p.vox_mm);
+  const segment::Mesh outside = torus_mesh(t.centre, t.major_mm, t.tube_mm + 0.5f * p.vox_mm);
   const auto second = segment::reinflate(p.smoothed, p.gradient, outside, first.stats);
-  const auto before = tube_wall_error_vox(outside, centre, 0.42f * half_mm, 0.2f * half_mm, p.vox_mm);
-  const auto after = tube_wall_error_vox(second.mesh, centre, 0.42f * half_mm, 0.2f * half_mm, p.vox_mm);
+  const auto before = tube_wall_error_vox(outside, t.centre, t.major_mm, t.tube_mm, p.vox_mm);
+  const auto after = tube_wall_error_vox(second.mesh, t.centre, t.major_mm, t.tube_mm, p.vox_mm);
   EXPECT_LE(after.first, before.first + 0.1f);
 }
 

@@ -29,47 +29,53 @@ openvdb::math::Transform::Ptr make_transform(const Volume& like) {
 
 openvdb::Coord coord(const Vec3i& ijk) { return openvdb::Coord(ijk.x(), ijk.y(), ijk.z()); }
 
-// Dense uint8 labels (1 where a voxel is active) of any grid in the volume's index space.
-template <typename GridT>
-Volume labels_from_active(const GridT& grid, const Vec3i& d, const Vec3f& spacing_mm,
-                          const Vec3f& origin_mm) {
-  Volume labels(d, spacing_mm, origin_mm, VoxelType::UInt8);
-  auto& out = labels.u8();
-  for (auto it = grid.cbeginValueOn(); it; ++it) {
-    const openvdb::CoordBBox box = it.getBoundingBox();  // a tile may cover many voxels
-    for (int k = std::max(box.min().z(), 0); k <= std::min(box.max().z(), d.z() - 1); ++k)
-      for (int j = std::max(box.min().y(), 0); j <= std::min(box.max().y(), d.y() - 1); ++j)
-        for (int i = std::max(box.min().x(), 0); i <= std::min(box.max().x(), d.x() - 1); ++i)
-          out[labels.linear_index(i, j, k)] = 1;
-  }
-  return labels;
-}
-
 }  // namespace
 
-struct OccupancyGrid::Impl {
+// A grid in the volume's index space (voxel size = spacing, same origin) with one cached
+// accessor, which is what makes neighbour-by-neighbour access cheap (it keeps the last leaf).
+template <typename GridT>
+struct IndexSpaceGrid {
   Vec3i dims;
   Vec3f spacing_mm;
   Vec3f origin_mm;
-  openvdb::BoolGrid::Ptr grid;
-  // get() is logically const; the accessor caches the last leaf, which is what makes the balloon's
-  // neighbour-by-neighbour access cheap. One accessor per grid: not for concurrent use.
-  mutable openvdb::BoolGrid::Accessor accessor;
+  typename GridT::Ptr grid;
+  // Logically const reads (OccupancyGrid::get) go through it too. One per grid: one thread.
+  mutable typename GridT::Accessor accessor;
 
-  explicit Impl(const Volume& like)
+  IndexSpaceGrid(const Volume& like, typename GridT::ValueType background, const char* name)
       : dims(like.dims()),
         spacing_mm(like.spacing_mm()),
         origin_mm(like.origin_mm()),
-        grid(make_grid(like)),
+        grid(make_grid(like, background, name)),
         accessor(grid->getAccessor()) {}
 
-  static openvdb::BoolGrid::Ptr make_grid(const Volume& like) {
+  // Dense uint8 labels, 1 where a voxel is active.
+  Volume to_labels() const {
+    Volume labels(dims, spacing_mm, origin_mm, VoxelType::UInt8);
+    auto& out = labels.u8();
+    const Vec3i& d = dims;
+    for (auto it = grid->cbeginValueOn(); it; ++it) {
+      const openvdb::CoordBBox box = it.getBoundingBox();  // a tile may cover many voxels
+      for (int k = std::max(box.min().z(), 0); k <= std::min(box.max().z(), d.z() - 1); ++k)
+        for (int j = std::max(box.min().y(), 0); j <= std::min(box.max().y(), d.y() - 1); ++j)
+          for (int i = std::max(box.min().x(), 0); i <= std::min(box.max().x(), d.x() - 1); ++i)
+            out[labels.linear_index(i, j, k)] = 1;
+    }
+    return labels;
+  }
+
+  static typename GridT::Ptr make_grid(const Volume& like, typename GridT::ValueType background,
+                                       const char* name) {
     init_openvdb();
-    auto g = openvdb::BoolGrid::create(false);
+    auto g = GridT::create(background);
     g->setTransform(make_transform(like));
-    g->setName("occupancy");
+    g->setName(name);
     return g;
   }
+};
+
+struct OccupancyGrid::Impl : IndexSpaceGrid<openvdb::BoolGrid> {
+  explicit Impl(const Volume& like) : IndexSpaceGrid(like, false, "occupancy") {}
 };
 
 OccupancyGrid::OccupancyGrid(const Volume& like) {
@@ -100,7 +106,7 @@ std::size_t OccupancyGrid::active_count() const {
 
 Volume OccupancyGrid::to_labels() const {
   if (!impl_) throw std::logic_error("OccupancyGrid: used after move");
-  return labels_from_active(*impl_->grid, impl_->dims, impl_->spacing_mm, impl_->origin_mm);
+  return impl_->to_labels();
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -128,27 +134,8 @@ Vec3f decode_normal(std::int32_t packed) {
 
 }  // namespace
 
-struct FrontGrid::Impl {
-  Vec3i dims;
-  Vec3f spacing_mm;
-  Vec3f origin_mm;
-  openvdb::Int32Grid::Ptr grid;
-  openvdb::Int32Grid::Accessor accessor;  // the marking thread's; caches the last leaf
-
-  explicit Impl(const Volume& like)
-      : dims(like.dims()),
-        spacing_mm(like.spacing_mm()),
-        origin_mm(like.origin_mm()),
-        grid(make_grid(like)),
-        accessor(grid->getAccessor()) {}
-
-  static openvdb::Int32Grid::Ptr make_grid(const Volume& like) {
-    init_openvdb();
-    auto g = openvdb::Int32Grid::create(0);
-    g->setTransform(make_transform(like));
-    g->setName("front");
-    return g;
-  }
+struct FrontGrid::Impl : IndexSpaceGrid<openvdb::Int32Grid> {
+  explicit Impl(const Volume& like) : IndexSpaceGrid(like, 0, "front") {}
 };
 
 struct FrontGrid::Reader::Impl {
@@ -202,7 +189,7 @@ std::size_t FrontGrid::memory_bytes() const {
 
 Volume FrontGrid::to_labels() const {
   if (!impl_) throw std::logic_error("FrontGrid: used after move");
-  return labels_from_active(*impl_->grid, impl_->dims, impl_->spacing_mm, impl_->origin_mm);
+  return impl_->to_labels();
 }
 
 std::optional<VolumeIoError> write_vdb(const Volume& field, const std::filesystem::path& path,
