@@ -27,7 +27,8 @@ struct PipelineConfig {
   segment::BalloonOptions balloon;
   reconstruct::PoissonOptions poisson;
   /// Reconstruct on a grid of the volume's finest voxel spacing (overrides poisson.cell_mm), as
-  /// method.md §5 asks; false keeps poisson.cell_mm.
+  /// method.md §5 asks, finer where a thin feature needs it (poisson.min_feature_cells); false
+  /// keeps poisson.cell_mm.
   bool cell_from_voxel = true;
   /// The second, short balloon pass from the reconstructed surface back to the boundary
   /// (segment::reinflate): gives back what the reconstruction's smoothing takes from thin parts.
@@ -66,6 +67,7 @@ struct PipelineResult {
   int opened_points = 0;           // oriented samples left after the opening
   Vec3i grid_dims = Vec3i::Zero(); // reconstruction grid
   float grid_cell_mm = 0.0f;
+  float grid_feature_mm = 0.0f;    // narrowest feature the samples showed (infinity: none thin)
 
   StageTimings timings;
   std::optional<volume::Volume> labels;     // UInt8 on the input grid, inside = 1

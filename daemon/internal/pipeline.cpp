@@ -77,7 +77,8 @@ PipelineResult run_pipeline(const volume::Volume& input, const Vec3f& seed_mm,
     return finish("the balloon left only " + std::to_string(samples.points.size()) +
                   " oriented points after the opening");
 
-  // §5: Kazhdan's FFT reconstruction and marching cubes, on a grid of the volume's voxel size.
+  // §5: Kazhdan's FFT reconstruction and marching cubes, on a grid of the volume's voxel size
+  // (finer where the opened balloon has a gap or solid too thin for it: a needle's tunnel).
   reconstruct::PoissonOptions poisson = config.poisson;
   if (config.cell_from_voxel) poisson.cell_mm = input.spacing_mm().minCoeff();
   reconstruct::SurfaceResult surface = reconstruct::reconstruct_surface(samples, seed_mm, poisson);
@@ -85,6 +86,7 @@ PipelineResult run_pipeline(const volume::Volume& input, const Vec3f& seed_mm,
   result.timings.mesh_ms = surface.mesh_ms;
   result.grid_dims = Vec3i(surface.grid_dims[0], surface.grid_dims[1], surface.grid_dims[2]);
   result.grid_cell_mm = surface.cell_mm;
+  result.grid_feature_mm = surface.feature_mm;
   result.mesh = std::move(surface.mesh);
   result.topology = surface.topology;
   result.enclosed_volume_ml = surface.topology.volume_ml;

@@ -1,4 +1,6 @@
 // The per-volume report (DESIGN.md "--report"), shared by `process` and `run`.
+#include <cmath>
+
 #include "daemon/pipeline.h"
 
 namespace sonomesh::daemon {
@@ -46,6 +48,9 @@ nlohmann::json report_json(const PipelineResult& result, const std::string& inpu
                        {"opened_points", result.opened_points}};
   report["reconstruction"] = {{"grid", vec_json(result.grid_dims)},
                               {"cell_mm", result.grid_cell_mm}};
+  // JSON has no infinity: the narrowest feature only when one was thin enough to matter.
+  if (std::isfinite(result.grid_feature_mm))
+    report["reconstruction"]["feature_mm"] = result.grid_feature_mm;
   report["mesh"] = {{"vertices", result.mesh.vertices.size()},
                     {"faces", result.mesh.triangles.size()},
                     {"components", result.topology.components},

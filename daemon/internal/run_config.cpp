@@ -276,6 +276,8 @@ std::optional<std::string> load_config_text(const std::string& text, const std::
     q.number("cell_mm", po.cell_mm, 1e-3, 100);
     q.number("padding_fraction", po.padding_fraction, 0.1, 2);
     q.number("smoothing_cells", po.smoothing_cells, 0, 20);
+    q.number("min_feature_cells", po.min_feature_cells, 0, 16);
+    q.number("min_cell_fraction", po.min_cell_fraction, 0.1, 1);
     q.number("max_grid_dim", po.max_grid_dim, 16, 2048);
     q.number("fft_threads", po.fft_threads, 1, 256);
     std::string divergence = to_string(po.divergence);
@@ -367,6 +369,9 @@ std::string to_toml(const RunConfig& c) {
     << "cell_mm = " << toml_float(q.cell_mm) << "\n"
     << "padding_fraction = " << toml_float(q.padding_fraction) << "\n"
     << "smoothing_cells = " << toml_float(q.smoothing_cells) << "\n"
+    << "min_feature_cells = " << toml_float(q.min_feature_cells)
+    << "  # a finer cell where the samples have a thinner gap or solid; 0: off\n"
+    << "min_cell_fraction = " << toml_float(q.min_cell_fraction) << "\n"
     << "max_grid_dim = " << q.max_grid_dim << "\n"
     << "fft_threads = " << q.fft_threads << "\n"
     << "divergence = " << toml_string(to_string(q.divergence)) << "\n"

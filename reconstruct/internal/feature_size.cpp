@@ -37,12 +37,15 @@ void check(bool ok, const std::string& what) {
   if (!ok) throw std::invalid_argument("narrowest_feature_mm: " + what);
 }
 
+// Samples sorted by bucket, positions and normals copied in that order so that a query reads
+// memory front to back.
 struct Buckets {
   Vec3f origin_mm;
   float size_mm = 0.0f;
   std::array<int, 3> dims{};
-  std::vector<std::uint32_t> start;  // per bucket, into order; one extra entry at the end
-  std::vector<std::uint32_t> order;  // sample indices sorted by bucket
+  std::vector<std::uint32_t> start;    // per bucket, into order; one extra entry at the end
+  std::vector<std::uint32_t> order;    // sample indices sorted by bucket
+  std::vector<Vec3f> points, normals;  // in `order`
 
   int axis_index(float p_mm, int a) const {
     return std::clamp(int((p_mm - origin_mm[a]) / size_mm), 0, dims[a] - 1);
@@ -52,7 +55,8 @@ struct Buckets {
   }
 };
 
-Buckets make_buckets(const std::vector<Vec3f>& points, float reach_mm) {
+Buckets make_buckets(const std::vector<Vec3f>& points, const std::vector<Vec3f>& normals,
+                     float reach_mm) {
   Vec3f lo = points.front(), hi = lo;
   for (const auto& p : points) {
     lo = lo.cwiseMin(p);
@@ -75,13 +79,20 @@ Buckets make_buckets(const std::vector<Vec3f>& points, float reach_mm) {
   b.order.resize(points.size());
   std::vector<std::uint32_t> fill(b.start.begin(), b.start.end() - 1);
   for (std::size_t i = 0; i < points.size(); ++i) b.order[fill[bucket_of[i]]++] = std::uint32_t(i);
+  b.points.resize(points.size());
+  b.normals.resize(points.size());
+  for (std::size_t q = 0; q < b.order.size(); ++q) {
+    b.points[q] = points[b.order[q]];
+    b.normals[q] = normals[b.order[q]];
+  }
   return b;
 }
 
-// Distance along n_i to the nearest partner of sample i (+infinity if none within max_width_mm).
-float local_width(const PointCloud& s, const Buckets& b, std::size_t i, float max_width_mm) {
-  const Vec3f& p = s.points[i];
-  const Vec3f& n = s.normals[i];
+// Distance along its normal from the q-th bucketed sample to its nearest partner (+infinity if
+// none within max_width_mm).
+float local_width(const Buckets& b, std::uint32_t q_self, float max_width_mm) {
+  const Vec3f& p = b.points[q_self];
+  const Vec3f& n = b.normals[q_self];
   const float reach2 = max_width_mm * max_width_mm * (1.0f + kConeTan * kConeTan);
   float best = std::numeric_limits<float>::infinity();
   const int cx = b.axis_index(p.x(), 0), cy = b.axis_index(p.y(), 1), cz = b.axis_index(p.z(), 2);
@@ -90,10 +101,9 @@ float local_width(const PointCloud& s, const Buckets& b, std::size_t i, float ma
       for (int x = std::max(cx - 1, 0); x <= std::min(cx + 1, b.dims[0] - 1); ++x) {
         const std::size_t k = b.index(x, y, z);
         for (std::uint32_t q = b.start[k]; q < b.start[k + 1]; ++q) {
-          const std::uint32_t j = b.order[q];
-          const Vec3f& m = s.normals[j];
-          if (j == i || n.dot(m) > kOpposedCos) continue;
-          const Vec3f d = s.points[j] - p;
+          const Vec3f& m = b.normals[q];
+          if (q == q_self || n.dot(m) > kOpposedCos) continue;
+          const Vec3f d = b.points[q] - p;
           if (d.squaredNorm() > reach2) continue;
           // Gap: j ahead of i and facing back (d·n > 0, d·m < 0). Solid: j behind, both turned
           // away from each other (d·n < 0, d·m > 0).
@@ -123,11 +133,13 @@ float narrowest_feature_mm(const PointCloud& s, float max_width_mm, float min_ar
     check(s.points[n].allFinite() && s.normals[n].allFinite() && std::isfinite(s.area_mm2[n]),
           "sample " + std::to_string(n) + " is not finite");
 
-  const Buckets b = make_buckets(s.points, max_width_mm * std::sqrt(1.0f + kConeTan * kConeTan));
+  const Buckets b =
+      make_buckets(s.points, s.normals, max_width_mm * std::sqrt(1.0f + kConeTan * kConeTan));
   std::vector<float> width(s.points.size());
   const int n = int(s.points.size());
-  internal::parallel_chunks(0, n, internal::default_threads(), [&](int i0, int i1, int) {
-    for (int i = i0; i < i1; ++i) width[i] = local_width(s, b, std::size_t(i), max_width_mm);
+  internal::parallel_chunks(0, n, internal::default_threads(), [&](int q0, int q1, int) {
+    for (int q = q0; q < q1; ++q)
+      width[b.order[q]] = local_width(b, std::uint32_t(q), max_width_mm);
   });
 
   std::vector<std::uint32_t> thin;

@@ -42,19 +42,22 @@ PointCloud ball_with_channel(float R, float a, float spacing_mm) {
 // across; samples 0.75 mm apart.
 constexpr float kVoxelMm = 0.5f, kCystMm = 7.0f, kNeedleRadiusMm = 0.625f, kSpacingMm = 0.75f;
 
+// On a round feature the nearest partner within the ~27° cones can sit off the diameter, and its
+// distance along the normal is then shorter: the width comes out between 80 % and 100 % of the
+// diameter (cos² 26.6° = 0.8), on the side of a finer grid.
 TEST(NarrowestFeature, IsTheChannelDiameter) {
   const PointCloud s = ball_with_channel(kCystMm, kNeedleRadiusMm, kSpacingMm);
-  // With five samples around the channel a sample's partner is not exactly diametric, so the
-  // chord along its normal is up to ~10 % shorter than the diameter.
   const float w = narrowest_feature_mm(s, 2.0f, 2.0f);
   EXPECT_LE(w, 2 * kNeedleRadiusMm + 1e-3f);
-  EXPECT_GE(w, 0.85f * 2 * kNeedleRadiusMm);
+  EXPECT_GE(w, 0.8f * 2 * kNeedleRadiusMm);
 }
 
 TEST(NarrowestFeature, IsTheTubeThicknessOfATorus) {
   const float tube_mm = 1.0f;
   const PointCloud s = test::torus_samples(Vec3f(1, 2, 3), 6.0f, tube_mm, 120, 24);
-  EXPECT_NEAR(narrowest_feature_mm(s, 4.0f, 2.0f), 2 * tube_mm, 0.05f);
+  const float w = narrowest_feature_mm(s, 4.0f, 2.0f);
+  EXPECT_LE(w, 2 * tube_mm + 1e-3f);
+  EXPECT_GE(w, 0.8f * 2 * tube_mm);
 }
 
 TEST(NarrowestFeature, IsInfiniteForABallOrBeyondTheSearchWidth) {
