@@ -647,13 +647,44 @@ BalloonResult reinflate(const volume::Volume& smoothed_in, const volume::Gradien
   const volume::Volume& smoothed = *as_float32(smoothed_in, converted);
   const ImageSampler sampler(smoothed, gradient);
 
-  BalloonMesh bm;
-  internal::from_plain_mesh(surface, bm);
-  for (std::uint32_t h = 0; h < bm.n_halfedges(); ++h)
-    if (bm.is_boundary(internal::Halfedge{h}))
-      throw std::invalid_argument("reinflate: the surface is not closed");
-  Arrays a;
-  extract(bm, a);
+  // Vertex -> incident faces (CSR). The pass needs no halfedges: the umbrella's centroid and the
+  // normal of equation (2) are sums over the incident faces, and the connectivity never changes.
+  // (A halfedge mesh of a 128³ reconstruction took longer to build than the pass to run.)
+  const std::size_t nv = surface.vertices.size(), nf = surface.triangles.size();
+  std::vector<std::uint32_t> face_begin(nv + 1, 0), faces(3 * nf);
+  for (const auto& t : surface.triangles)
+    for (const std::uint32_t v : t) {
+      if (v >= nv) throw std::invalid_argument("reinflate: triangle index out of range");
+      ++face_begin[v + 1];
+    }
+  for (std::size_t v = 0; v < nv; ++v) face_begin[v + 1] += face_begin[v];
+  {
+    std::vector<std::uint32_t> fill(face_begin.begin(), face_begin.end() - 1);
+    for (std::uint32_t f = 0; f < nf; ++f)
+      for (const std::uint32_t v : surface.triangles[f]) faces[fill[v]++] = f;
+  }
+  // Closed and manifold at every vertex: its link, the edges (b, c) opposite it in its faces
+  // (counter-clockwise), is one cycle, so every neighbour starts one link edge and ends one.
+  for (std::uint32_t v = 0; v < nv; ++v) {
+    std::array<std::uint32_t, 64> from{}, to{};
+    const std::uint32_t deg = face_begin[v + 1] - face_begin[v];
+    if (deg < 3 || deg > from.size()) throw std::invalid_argument("reinflate: the surface is not a closed manifold");
+    for (std::uint32_t i = 0; i < deg; ++i) {
+      const auto& t = surface.triangles[faces[face_begin[v] + i]];
+      const int k = t[0] == v ? 0 : t[1] == v ? 1 : 2;
+      from[i] = t[(k + 1) % 3];
+      to[i] = t[(k + 2) % 3];
+    }
+    std::sort(from.begin(), from.begin() + deg);
+    std::sort(to.begin(), to.begin() + deg);
+    if (!std::equal(from.begin(), from.begin() + deg, to.begin()) ||
+        std::adjacent_find(from.begin(), from.begin() + deg) != from.begin() + deg)
+      throw std::invalid_argument("reinflate: the surface is not closed (or not manifold) at vertex " +
+                                  std::to_string(v));
+  }
+  std::vector<Vec3f> pos = surface.vertices, next_pos = surface.vertices;
+  std::vector<float> cost_of(nv), floor_of(nv), path_of(nv, 0.0f);
+  std::vector<StopReason> reason(nv);
 
   // The first pass's rule, seed statistics and thresholds: both passes stop at the same level.
   internal::CostScale scale;
@@ -671,12 +702,13 @@ BalloonResult reinflate(const volume::Volume& smoothed_in, const volume::Gradien
   // Each vertex starts as if it had climbed from the seed's level to where it stands (Ψ_cost is
   // what a path from inside has climbed), so a vertex part-way up the wall climbs only the rest.
   // A vertex already above the wall's mid level is at or past the wall: it stays.
-  for (std::size_t v = 0; v < a.pos.size(); ++v) {
-    const float level = scale.map(sampler.value(a.pos[v]));
-    a.cost[v] = std::max(0.0f, level - seed_level);
-    a.floor_level[v] = std::min(level, seed_level);
-    a.path[v] = 0.0f;
-    a.reason[v] = level >= mid_level ? StopReason::Boundary : StopReason::Moving;
+  std::vector<std::uint32_t> active;
+  for (std::uint32_t v = 0; v < nv; ++v) {
+    const float level = scale.map(sampler.value(pos[v]));
+    cost_of[v] = std::max(0.0f, level - seed_level);
+    floor_of[v] = std::min(level, seed_level);
+    reason[v] = level >= mid_level ? StopReason::Boundary : StopReason::Moving;
+    if (reason[v] == StopReason::Moving) active.push_back(v);
   }
 
   BalloonResult result;
@@ -689,55 +721,55 @@ BalloonResult reinflate(const volume::Volume& smoothed_in, const volume::Gradien
   const float mu_mm = options.inflation_vox * vox_mm, max_move_mm = pass.max_move_vox * vox_mm;
   const Vec3f box_lo = smoothed.min_mm() + Vec3f::Constant(0.5f * vox_mm);
   const Vec3f box_hi = smoothed.max_mm() - Vec3f::Constant(0.5f * vox_mm);
-  // Serial: a short pass over a mesh that is mostly stopped from the start.
-  int it = 0, moving = 0;
-  for (it = 1; it <= pass.max_iterations; ++it) {
+  // Serial, over the vertices still moving: most of the surface is on the wall from the start.
+  auto face_normal = [&](std::uint32_t f) {
+    const auto& t = surface.triangles[f];
+    const Vec3f n = (pos[t[1]] - pos[t[0]]).cross(pos[t[2]] - pos[t[0]]);
+    const float len = n.norm();
+    return len > 0.0f ? Vec3f(n / len) : Vec3f::Zero();
+  };
+  int it = 0;
+  for (it = 1; it <= pass.max_iterations && !active.empty(); ++it) {
     if (stop.stop_requested()) {
       stats.cancelled = true;
       break;
     }
-    for (std::size_t f = 0; f < a.tri.size(); ++f) {
-      const auto& t = a.tri[f];
-      const Vec3f n = (a.pos[t[1]] - a.pos[t[0]]).cross(a.pos[t[2]] - a.pos[t[0]]);
-      const float len = n.norm();
-      a.face_normal[f] = len > 0.0f ? Vec3f(n / len) : Vec3f::Zero();
-    }
-    moving = 0;
-    for (std::size_t v = 0; v < a.pos.size(); ++v) {
-      a.next_pos[v] = a.pos[v];
-      if (a.reason[v] != StopReason::Moving) continue;
-      const Vec3f p = a.pos[v];
+    std::size_t still = 0;
+    for (const std::uint32_t v : active) {
+      const Vec3f p = pos[v];
       Vec3f n = Vec3f::Zero(), centroid = Vec3f::Zero();
-      for (std::uint32_t r = a.ring_begin[v]; r < a.ring_begin[v + 1]; ++r) {
-        n += a.face_normal[a.ring_face_left[r]];  // equation (2)
-        centroid += a.pos[a.ring_vertex[r]];
+      for (std::uint32_t i = face_begin[v]; i < face_begin[v + 1]; ++i) {
+        n += face_normal(faces[i]);  // equation (2)
+        for (const std::uint32_t q : surface.triangles[faces[i]]) centroid += pos[q];
       }
       if (n.norm() > 0.0f) n.normalize();
-      const Vec3f umbrella = centroid / static_cast<float>(a.ring_begin[v + 1] - a.ring_begin[v]) - p;
+      // U(P): each of the deg neighbours is in two of the faces, and P itself in all of them.
+      const float deg = static_cast<float>(face_begin[v + 1] - face_begin[v]);
+      const Vec3f umbrella = (centroid - deg * p) / (2.0f * deg) - p;
       const Vec3f d = h * (lambda * umbrella + mu_mm * n);
       const Vec3f target = p + d;
       if ((target.array() < box_lo.array()).any() || (target.array() > box_hi.array()).any()) {
-        a.reason[v] = StopReason::Boundary;
+        reason[v] = StopReason::Boundary;
         continue;
       }
       bool stopped = false;
-      const float t = cost.advance(sampler, p, d, a.cost[v], a.floor_level[v], a.path[v], stopped);
-      a.next_pos[v] = p + t * d;
-      if (stopped) a.reason[v] = StopReason::Boundary;
-      else if (a.path[v] >= max_move_mm) a.reason[v] = StopReason::IterationLimit;  // moved its most
-      else ++moving;
+      const float t = cost.advance(sampler, p, d, cost_of[v], floor_of[v], path_of[v], stopped);
+      next_pos[v] = p + t * d;
+      if (stopped) reason[v] = StopReason::Boundary;
+      else if (path_of[v] >= max_move_mm) reason[v] = StopReason::IterationLimit;  // moved its most
+      else active[still++] = v;
     }
-    std::swap(a.pos, a.next_pos);
-    if (moving == 0) break;
+    // Every update above read the previous iterate; now they all take effect.
+    for (std::uint32_t v = 0; v < nv; ++v) pos[v] = next_pos[v];
+    active.resize(still);
   }
   stats.iterations = std::min(it, pass.max_iterations);
-  for (auto& r : a.reason)
-    if (r == StopReason::Moving) r = StopReason::IterationLimit;
-  result.mesh.vertices = a.pos;
+  for (const std::uint32_t v : active) reason[v] = StopReason::IterationLimit;
+  result.converged = active.empty();
+  result.mesh.vertices = std::move(pos);
   result.mesh.triangles = surface.triangles;
-  result.stop = a.reason;
-  for (const StopReason r : a.reason) ++stats.stop_counts[static_cast<std::size_t>(r)];
-  result.converged = moving == 0;
+  for (const StopReason r : reason) ++stats.stop_counts[static_cast<std::size_t>(r)];
+  result.stop = std::move(reason);
   stats.elapsed_ms =
       std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
   return result;
