@@ -443,10 +443,18 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::G
       for (std::size_t i = b; i < e; ++i) {
         const std::uint32_t v = active[i];
         const std::uint32_t slot0 = a.ring_begin[v] + v;
+        // A vertex's samples often share voxels (an edge's midpoint lies 0.5-1 voxel from it):
+        // each voxel is looked up in A_t once per vertex.
+        std::array<Vec3i, 16> seen;
+        std::size_t n_seen = 0;
         auto stage = [&](std::uint32_t slot, const Vec3f& p_mm) {
           Vec3i ijk;
           pending[slot].x() = kNoVoxel;
-          if (marks.voxel(p_mm, ijk) && !reader.marked(ijk)) pending[slot] = ijk;
+          if (!marks.voxel(p_mm, ijk)) return;
+          for (std::size_t k = 0; k < n_seen; ++k)
+            if (seen[k] == ijk) return;
+          if (n_seen < seen.size()) seen[n_seen++] = ijk;
+          if (!reader.marked(ijk)) pending[slot] = ijk;
         };
         pending[slot0].x() = kNoVoxel;
         if (!moved[v]) continue;
