@@ -342,10 +342,9 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::G
   // wall with a low Ψ_cost (a dark speckle patch in the wall) before it runs on in the tissue,
   // where the leaky Ψ_cost of speckle alone stays below τ_cost: a leak.
   const float tau_climb = std::max(tau_cost, climb_to(options.climb_backstop_fraction));
-  // Speckle raises Ψ_cost a little on every step; over a long path (the far side of a torus)
-  // that alone would stop vertices before the wall. The allowance adds the rate measured inside
-  // the target times the path length to the threshold, so every vertex stops at the same point
-  // of the wall's rise however far it travelled.
+  // Speckle raises Ψ_cost a little on every step. The cost window bounds what it adds over a long
+  // path (the far side of a torus); the optional noise allowance (off by default, segment.h) adds
+  // the rate measured inside the target times the path to the threshold instead.
   const CostRule cost{.scale = scale,
                       .tau = tau_cost,
                       .tau_climb = tau_climb,
