@@ -3,6 +3,7 @@
 /// @brief The per-volume pipeline every sonomeshd mode runs: smooth, balloon, opening, Kazhdan
 /// reconstruction, marching cubes, topology, labels (DESIGN.md, docs/method.md).
 
+#include <limits>
 #include <nlohmann/json.hpp>
 #include <optional>
 #include <stop_token>
@@ -67,7 +68,8 @@ struct PipelineResult {
   int opened_points = 0;           // oriented samples left after the opening
   Vec3i grid_dims = Vec3i::Zero(); // reconstruction grid
   float grid_cell_mm = 0.0f;
-  float grid_feature_mm = 0.0f;    // narrowest feature the samples showed (infinity: none thin)
+  float grid_feature_mm = std::numeric_limits<float>::infinity();  // narrowest feature the
+                                   // samples showed (infinity: none thin enough to matter)
 
   StageTimings timings;
   std::optional<volume::Volume> labels;     // UInt8 on the input grid, inside = 1

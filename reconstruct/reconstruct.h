@@ -134,6 +134,9 @@ struct Topology {
 /// Counts and checks of a triangle mesh. @throws std::invalid_argument on out-of-range indices.
 Topology analyze_topology(const Mesh& mesh);
 
+/// Topology::volume_ml alone: for a mesh whose vertices moved but whose connectivity did not.
+double enclosed_volume_ml(const Mesh& mesh);
+
 /// Splits a mesh into its connected components (by shared vertices), vertices renumbered.
 std::vector<Mesh> connected_components(const Mesh& mesh);
 

@@ -100,15 +100,16 @@ PipelineResult run_pipeline(const volume::Volume& input, const Vec3f& seed_mm,
     return finish("the reconstructed surface does not enclose the seed");
 
   // Beyond the paper: the second balloon pass from the reconstruction back to the wall. It moves
-  // vertices only, so the topology's counts stay; the enclosed volume is measured again.
-  if (config.reinflate && result.topology.watertight) {
+  // vertices only, so the topology's counts stay; the enclosed volume is measured again. It needs
+  // a closed manifold (its precondition): a surface that is not one is kept as reconstructed.
+  if (config.reinflate && result.topology.manifold) {
     t = Clock::now();
     segment::BalloonResult second = segment::reinflate(smoothed, gradient, result.mesh, result.balloon_stats,
                                                        config.balloon, config.reinflate_pass, stop);
     result.timings.reinflate_ms = ms_since(t);
     if (stop.stop_requested()) return finish("stopped");
     result.mesh = std::move(second.mesh);
-    result.topology = reconstruct::analyze_topology(result.mesh);
+    result.topology.volume_ml = reconstruct::enclosed_volume_ml(result.mesh);
     result.enclosed_volume_ml = result.topology.volume_ml;
   }
 

@@ -153,9 +153,11 @@ Topology analyze_topology(const Mesh& mesh) {
     }
   }
   topo.manifold = manifold;
-  topo.volume_ml = signed_volume_mm3(mesh) / 1000.0;
+  topo.volume_ml = enclosed_volume_ml(mesh);
   return topo;
 }
+
+double enclosed_volume_ml(const Mesh& mesh) { return signed_volume_mm3(mesh) / 1000.0; }
 
 std::vector<Mesh> connected_components(const Mesh& mesh) {
   check_indices(mesh, "connected_components");

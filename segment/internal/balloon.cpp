@@ -221,6 +221,24 @@ struct CostRule {
   }
 };
 
+void check_gradient(const volume::Volume& smoothed, const volume::Gradient& gradient,
+                    const char* who) {
+  for (const volume::Volume* g : {&gradient.gx, &gradient.gy, &gradient.gz})
+    if (g->dims() != smoothed.dims() || g->type() != volume::VoxelType::Float32)
+      throw std::invalid_argument(std::string(who) +
+                                  ": gradient must be Float32 on the volume's grid (volume::central_gradient)");
+}
+
+// The relative scale's floor: 10 % of the tissue level (segment.h, relative_cost).
+internal::CostScale cost_scale(bool relative, float tissue_level) {
+  internal::CostScale scale;
+  if (relative) {
+    scale.relative = true;
+    scale.floor = std::max(1e-3f, 0.1f * tissue_level);
+  }
+  return scale;
+}
+
 // The sampler reads Float32 directly: other types (an unsmoothed UInt8 volume) are converted once
 // into `storage`.
 const volume::Volume* as_float32(const volume::Volume& v, volume::Volume& storage) {
@@ -277,11 +295,7 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::G
                               std::stop_token stop) {
   const auto t0 = std::chrono::steady_clock::now();
   if (smoothed_in.empty()) throw std::invalid_argument("inflate_balloon: empty volume");
-  for (const volume::Volume* g : {&gradient.gx, &gradient.gy, &gradient.gz}) {
-    if (g->dims() != smoothed_in.dims() || g->type() != volume::VoxelType::Float32)
-      throw std::invalid_argument(
-          "inflate_balloon: gradient must be Float32 on the volume's grid (volume::central_gradient)");
-  }
+  check_gradient(smoothed_in, gradient, "inflate_balloon");
   if (!smoothed_in.contains_mm(seed_mm))
     throw std::invalid_argument("inflate_balloon: seed (" + std::to_string(seed_mm.x()) + ", " +
                                 std::to_string(seed_mm.y()) + ", " + std::to_string(seed_mm.z()) +
@@ -301,12 +315,8 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::G
   // The relative scale's floor needs the tissue level, which the rays estimate; the first pass
   // (plain scale) gives it, the second measures the noise rate in the scale actually used.
   internal::SeedRegion seed = internal::analyse_seed(sampler, *smoothed, seed_mm, vox_mm, ball_mm, {});
-  internal::CostScale scale;
-  if (options.relative_cost && seed.rays_hit > 0) {
-    scale.relative = true;
-    scale.floor = std::max(1e-3f, 0.1f * seed.tissue_level);
-    seed = internal::analyse_seed(sampler, *smoothed, seed_mm, vox_mm, ball_mm, scale);
-  }
+  const internal::CostScale scale = cost_scale(options.relative_cost && seed.rays_hit > 0, seed.tissue_level);
+  if (scale.relative) seed = internal::analyse_seed(sampler, *smoothed, seed_mm, vox_mm, ball_mm, scale);
   stats.seed_level = seed.level;
   stats.seed_sigma = seed.sigma;
   stats.tissue_level = seed.tissue_level;
@@ -641,9 +651,7 @@ BalloonResult reinflate(const volume::Volume& smoothed_in, const volume::Gradien
                         std::stop_token stop) {
   const auto t0 = std::chrono::steady_clock::now();
   if (smoothed_in.empty()) throw std::invalid_argument("reinflate: empty volume");
-  for (const volume::Volume* g : {&gradient.gx, &gradient.gy, &gradient.gz})
-    if (g->dims() != smoothed_in.dims() || g->type() != volume::VoxelType::Float32)
-      throw std::invalid_argument("reinflate: gradient must be Float32 on the volume's grid");
+  check_gradient(smoothed_in, gradient, "reinflate");
   if (!(first_pass.tissue_level > first_pass.seed_level))
     throw std::invalid_argument("reinflate: first_pass holds no seed statistics (a balloon that ran)");
   if (!(pass.max_move_vox > 0.0f) || pass.max_iterations < 1)
@@ -670,8 +678,9 @@ BalloonResult reinflate(const volume::Volume& smoothed_in, const volume::Gradien
     for (std::uint32_t f = 0; f < nf; ++f)
       for (const std::uint32_t v : surface.triangles[f]) faces[fill[v]++] = f;
   }
-  // Closed and manifold at every vertex: its link, the edges (b, c) opposite it in its faces
-  // (counter-clockwise), is one cycle, so every neighbour starts one link edge and ends one.
+  // Closed at every vertex: in its link, the edges (b, c) opposite it in its faces (counter-
+  // clockwise), every neighbour starts exactly one link edge and ends one. An open surface (a
+  // border edge) or an edge with more than two faces fails this.
   for (std::uint32_t v = 0; v < nv; ++v) {
     std::array<std::uint32_t, 64> from{}, to{};
     const std::uint32_t deg = face_begin[v + 1] - face_begin[v];
@@ -694,27 +703,24 @@ BalloonResult reinflate(const volume::Volume& smoothed_in, const volume::Gradien
   std::vector<StopReason> reason(nv);
 
   // The first pass's rule, seed statistics and thresholds: both passes stop at the same level.
-  internal::CostScale scale;
-  if (options.relative_cost) {
-    scale.relative = true;
-    scale.floor = std::max(1e-3f, 0.1f * first_pass.tissue_level);
-  }
+  const internal::CostScale scale = cost_scale(options.relative_cost, first_pass.tissue_level);
   const CostRule cost{.scale = scale,
                       .tau = first_pass.tau_cost_used,
                       .tau_climb = first_pass.tau_climb_used,
                       .window_mm = options.cost_window_vox * vox_mm,
                       .noise_per_mm = options.noise_allowance ? first_pass.noise_rise_per_mm : 0.0f};
   const float seed_level = scale.map(first_pass.seed_level);
-  const float mid_level = scale.map(0.5f * (first_pass.seed_level + first_pass.tissue_level));
+  const float wall_level = scale.map(first_pass.seed_level + options.tau_cost_fraction *
+                                                                 (first_pass.tissue_level - first_pass.seed_level));
   // Each vertex starts as if it had climbed from the seed's level to where it stands (Ψ_cost is
   // what a path from inside has climbed), so a vertex part-way up the wall climbs only the rest.
-  // A vertex already above the wall's mid level is at or past the wall: it stays.
+  // A vertex already above the level where the first pass stops is at or past the wall: it stays.
   std::vector<std::uint32_t> active;
   for (std::uint32_t v = 0; v < nv; ++v) {
     const float level = scale.map(sampler.value(pos[v]));
     cost_of[v] = std::max(0.0f, level - seed_level);
     floor_of[v] = std::min(level, seed_level);
-    reason[v] = level >= mid_level ? StopReason::Boundary : StopReason::Moving;
+    reason[v] = level >= wall_level ? StopReason::Boundary : StopReason::Moving;
     if (reason[v] == StopReason::Moving) active.push_back(v);
   }
 
@@ -735,14 +741,16 @@ BalloonResult reinflate(const volume::Volume& smoothed_in, const volume::Gradien
     const float len = n.norm();
     return len > 0.0f ? Vec3f(n / len) : Vec3f::Zero();
   };
+  std::vector<std::uint32_t> moved_now;  // this iteration's active vertices
   int it = 0;
   for (it = 1; it <= pass.max_iterations && !active.empty(); ++it) {
     if (stop.stop_requested()) {
       stats.cancelled = true;
       break;
     }
+    moved_now.assign(active.begin(), active.end());
     std::size_t still = 0;
-    for (const std::uint32_t v : active) {
+    for (const std::uint32_t v : moved_now) {
       const Vec3f p = pos[v];
       Vec3f n = Vec3f::Zero(), centroid = Vec3f::Zero();
       for (std::uint32_t i = face_begin[v]; i < face_begin[v + 1]; ++i) {
@@ -766,8 +774,8 @@ BalloonResult reinflate(const volume::Volume& smoothed_in, const volume::Gradien
       else if (path_of[v] >= max_move_mm) reason[v] = StopReason::IterationLimit;  // moved its most
       else active[still++] = v;
     }
-    // Every update above read the previous iterate; now they all take effect.
-    for (std::uint32_t v = 0; v < nv; ++v) pos[v] = next_pos[v];
+    // Every update above read the previous iterate; now they take effect.
+    for (const std::uint32_t v : moved_now) pos[v] = next_pos[v];
     active.resize(still);
   }
   stats.iterations = std::min(it, pass.max_iterations);
