@@ -16,6 +16,7 @@
 
 #include <array>
 #include <cstddef>
+#include <cstdint>
 #include <stop_token>
 #include <string>
 #include <vector>
@@ -102,6 +103,13 @@ struct BalloonStats {
   int splits = 0;
   int collapses = 0;
   double elapsed_ms = 0.0;
+  // Where elapsed_ms went, summed over the iterations (for benchmarks): the Euler step with its
+  // stop tests, the normals, marking A_t, and remeshing with the flat arrays' re-extraction.
+  double evolve_ms = 0.0;
+  double normals_ms = 0.0;
+  double mark_ms = 0.0;
+  double remesh_ms = 0.0;
+  std::int64_t vertex_iterations = 0;  // moving vertices summed over the iterations
   bool stalled = false;             // ended because nothing moved any more
   bool cancelled = false;           // ended because the stop_token was triggered
   bool leaked = false;              // ended at the leak bound (max_area_fraction); error set

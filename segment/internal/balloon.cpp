@@ -56,6 +56,11 @@ class FrontMarks {
         origin_mm_(grid.origin_mm()),
         inv_spacing_(grid.spacing_mm().cwiseInverse()) {}
 
+  // Linear index of a voxel (for remembering which voxel a vertex last marked from).
+  std::int64_t linear(const Vec3i& ijk) const {
+    return ijk.x() + static_cast<std::int64_t>(dims_.x()) * (ijk.y() + static_cast<std::int64_t>(dims_.y()) * ijk.z());
+  }
+
   // Voxel containing p (voxel centres at integer indices); false outside the volume.
   bool voxel(const Vec3f& p_mm, Vec3i& ijk) const {
     const Vec3f u = (p_mm - origin_mm_).cwiseProduct(inv_spacing_) + Vec3f::Constant(0.5f);
@@ -93,6 +98,7 @@ struct Arrays {
   std::vector<Vec3f> anchor;
   std::vector<float> path;
   std::vector<float> floor_level;
+  std::vector<std::int64_t> marked_voxel;
   std::vector<Vec3f> normal;                      // vertex normals of the last iteration
   std::vector<std::array<std::uint32_t, 3>> tri;
   std::vector<Vec3f> face_normal;
@@ -121,6 +127,7 @@ void extract(const BalloonMesh& bm, Arrays& a) {
   a.anchor.resize(nv);
   a.path.resize(nv);
   a.floor_level.resize(nv);
+  a.marked_voxel.resize(nv);
   a.normal.assign(nv, Vec3f::Zero());
   const auto states = bm.states();
   for (std::size_t v = 0; v < nv; ++v) {
@@ -129,6 +136,7 @@ void extract(const BalloonMesh& bm, Arrays& a) {
     a.anchor[v] = states[v].anchor_mm;
     a.path[v] = states[v].path_mm;
     a.floor_level[v] = states[v].floor_level;
+    a.marked_voxel[v] = states[v].marked_voxel;
   }
   a.ring_begin.resize(nv + 1);
   a.ring_vertex.resize(nh);
@@ -166,7 +174,8 @@ void write_back(const Arrays& a, BalloonMesh& bm) {
         .reason = a.reason[v],
         .anchor_mm = a.anchor[v],
         .path_mm = a.path[v],
-        .floor_level = a.floor_level[v]};
+        .floor_level = a.floor_level[v],
+        .marked_voxel = a.marked_voxel[v]};
 }
 
 template <typename F>
@@ -408,14 +417,22 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::G
   // so a balloon whose walls have mostly settled (the far end of a torus's tube still growing)
   // costs what its moving front costs.
   std::vector<std::uint32_t> active;
-  auto collect_active = [&] {
+  // All of them after a remeshing pass (the mesh's indices changed); in between, iterations only
+  // drop the ones that stopped.
+  auto all_active = [&] {
     active.clear();
     for (std::uint32_t v = 0; v < a.pos.size(); ++v)
       if (a.reason[v] == StopReason::Moving) active.push_back(v);
   };
+  auto collect_active = [&] {
+    std::erase_if(active, [&](std::uint32_t v) { return a.reason[v] != StopReason::Moving; });
+  };
+  // Per vertex and iteration: kMoved if it moved, kMarks as well if it also entered another voxel
+  // than the one it last marked A_t from (so it marks its samples again, below).
+  constexpr std::uint8_t kMoved = 1, kMarks = 2;
+  std::vector<std::uint8_t> moved(a.pos.size(), kMoved | kMarks);
   // Face normals where a vertex changed (all of them when `all`), then vertex normals, equation
   // (2), of the active vertices: the only ones whose normal is read (to move, or to mark A_t).
-  std::vector<std::uint8_t> moved(a.pos.size(), 1);
   auto compute_normals = [&](bool all) {
     parallel_for(arena, serial, a.tri.size(), [&](std::size_t b, std::size_t e) {
       for (std::size_t f = b; f < e; ++f) {
@@ -438,9 +455,12 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::G
     });
   };
 
-  // Marks the surface samples of every vertex that moved: its own voxel and the midpoints of its
-  // edges. Edges are at most 4/3 L <= 2 voxels long, so the samples lie at most a voxel apart and
-  // a front sweeping half a voxel per iteration leaves a solid band of marked voxels.
+  // Marks the surface samples of every vertex that entered a new voxel: its own voxel and the
+  // midpoints of its edges. Edges are at most 4/3 L <= 2 voxels long, so the samples lie at most a
+  // voxel apart and the front leaves a solid band of marked voxels. A vertex that moved within its
+  // voxel marks nothing: at 0.3 voxel per iteration that is most iterations, and every sample was
+  // looked up ~13 times per voxel it marked. An edge midpoint that crossed into a new voxel while
+  // both ends stayed in theirs is marked when one end crosses, at most a voxel of travel later.
   // Two phases: the samples not yet in A_t are found in parallel (slot r + v of vertex v's CSR
   // range, one per edge plus its own), then marked serially in vertex order.
   constexpr int kNoVoxel = std::numeric_limits<int>::min();
@@ -466,12 +486,12 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::G
           if (!reader.marked(ijk)) pending[slot] = ijk;
         };
         pending[slot0].x() = kNoVoxel;
-        if (!moved[v]) continue;
+        if (!(moved[v] & kMarks)) continue;
         stage(slot0, a.pos[v]);
         std::uint32_t slot = slot0 + 1;
         for (std::uint32_t r = a.ring_begin[v]; r < a.ring_begin[v + 1]; ++r, ++slot) {
           const std::uint32_t q = a.ring_vertex[r];
-          if (q < v && moved[q]) {  // that edge is marked from q
+          if (q < v && (moved[q] & kMarks)) {  // that edge is marked from q
             pending[slot].x() = kNoVoxel;
             continue;
           }
@@ -480,14 +500,14 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::G
       }
     });
     for (const std::uint32_t v : active) {
-      if (!moved[v]) continue;
+      if (!(moved[v] & kMarks)) continue;
       const std::uint32_t slot0 = a.ring_begin[v] + v, slot1 = a.ring_begin[v + 1] + v + 1;
       for (std::uint32_t slot = slot0; slot < slot1; ++slot)
         if (pending[slot].x() != kNoVoxel) marks.grid().mark(pending[slot], a.normal[v]);
     }
   };
 
-  collect_active();
+  all_active();
   compute_normals(true);
   mark_front();
 
@@ -503,6 +523,10 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::G
     return false;
   };
 
+  using Clock = std::chrono::steady_clock;
+  auto ms_since = [](Clock::time_point t) {
+    return std::chrono::duration<double, std::milli>(Clock::now() - t).count();
+  };
   int it = 0;
   bool all_stopped = false;
   int fewest_moving = std::numeric_limits<int>::max();
@@ -514,6 +538,8 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::G
     }
     // Normals are current for a.pos here; every update reads the previous iterate only.
     std::atomic<int> moving_count{0};
+    const auto t_evolve = Clock::now();
+    stats.vertex_iterations += static_cast<std::int64_t>(active.size());
     parallel_for(arena, serial, active.size(), [&](std::size_t b, std::size_t e) {
       const volume::FrontGrid::Reader reader(marks.grid());
       int local_moving = 0;
@@ -528,12 +554,13 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::G
         for (std::uint32_t r = r0; r < r1; ++r) {
           const Vec3f q = a.pos[a.ring_vertex[r]];
           centroid += q;
-          // H(PQ)/|PQ| = |ê × (n₁ − n₂)| (Sullivan), normalised by the edge length.
+          // H(PQ)/|PQ| = |(Q − P) × (n₁ − n₂)| / |Q − P| (Sullivan), normalised by the edge
+          // length; one square root per edge.
           const Vec3f edge = q - p;
-          const float len = edge.norm();
-          if (len > 0.0f)
-            curvature += (edge / len).cross(a.face_normal[a.ring_face_left[r]] -
-                                            a.face_normal[a.ring_face_right[r]]).norm();
+          const float len2 = edge.squaredNorm();
+          if (len2 > 0.0f)
+            curvature += std::sqrt(edge.cross(a.face_normal[a.ring_face_left[r]] -
+                                              a.face_normal[a.ring_face_right[r]]).squaredNorm() / len2);
         }
         const float deg = static_cast<float>(r1 - r0);
         curvature /= deg;
@@ -557,7 +584,13 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::G
         bool stopped = false;
         const float t = cost.advance(sampler, p, d, a.cost[v], a.floor_level[v], a.path[v], stopped);
         a.next_pos[v] = p + t * d;
-        moved[v] = 1;
+        moved[v] = kMoved;
+        Vec3i ijk;
+        const std::int64_t voxel = marks.voxel(a.next_pos[v], ijk) ? marks.linear(ijk) : -1;
+        if (voxel != a.marked_voxel[v]) {
+          moved[v] |= kMarks;
+          a.marked_voxel[v] = voxel;
+        }
         if (stopped) a.reason[v] = StopReason::Boundary;
         else ++local_moving;
       }
@@ -567,8 +600,13 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::G
       for (std::size_t i = b; i < e; ++i)
         if (moved[active[i]]) a.pos[active[i]] = a.next_pos[active[i]];
     });
+    stats.evolve_ms += ms_since(t_evolve);
+    const auto t_normals = Clock::now();
     compute_normals(false);
+    stats.normals_ms += ms_since(t_normals);
+    const auto t_mark = Clock::now();
     mark_front();
+    stats.mark_ms += ms_since(t_mark);
     for (const std::uint32_t v : active) moved[v] = 0;
     collect_active();
 
@@ -601,6 +639,7 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::G
       }
     }
     if (it % options.remesh_every_iterations == 0 && needs_remesh()) {
+      const auto t_remesh = Clock::now();
       write_back(a, bm);
       const auto counts = internal::remesh(bm, limits);
       ++stats.remesh_passes;
@@ -608,8 +647,9 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::G
       stats.collapses += counts.collapses;
       extract(bm, a);
       moved.assign(a.pos.size(), 0);
-      collect_active();
+      all_active();
       compute_normals(true);
+      stats.remesh_ms += ms_since(t_remesh);
       if (a.pos.size() > max_vertices) {
         stats.leaked = true;
         break;

@@ -34,6 +34,8 @@ struct VertexState {
   Vec3f anchor_mm = Vec3f::Zero();          // position at the start of the stall window
   float path_mm = 0.0f;                     // length of the path travelled
   float floor_level = 1e30f;                // darkest level met on the path (cost scale)
+  std::int64_t marked_voxel = -1;           // linear index of the voxel it last marked A_t
+                                            // from (-1: none yet, e.g. new from a split)
 };
 
 inline constexpr std::uint32_t kInvalidIndex = std::numeric_limits<std::uint32_t>::max();

@@ -26,7 +26,9 @@ class ImageSampler {
         img_(image.f32().data()),
         gx_(gradient.gx.f32().data()),
         gy_(gradient.gy.f32().data()),
-        gz_(gradient.gz.f32().data()) {}
+        gz_(gradient.gz.f32().data()) {
+    set_up_corners();
+  }
 
   float value(const Vec3f& p_mm) const {
     Corners c = corners(p_mm);
@@ -68,33 +70,41 @@ class ImageSampler {
     float w[8];
   };
 
+  // The eight corners as one base index plus fixed offsets (set up once per sampler): the
+  // per-axis index arithmetic is done once per sample, not once per corner.
   Corners corners(const Vec3f& p_mm) const {
     Corners c;
-    std::size_t base[3][2];
-    float frac[3];
+    std::size_t base = 0;
+    float f[3];
+    for (int a = 0; a < 3; ++a) {
+      const float u = std::clamp((p_mm[a] - origin_mm_[a]) * inv_spacing_[a], 0.0f, max_index_[a]);
+      const int i0 = std::min(static_cast<int>(u), last_cell_[a]);
+      f[a] = std::min(u - static_cast<float>(i0), 1.0f);
+      base += static_cast<std::size_t>(i0) * stride_[a];
+    }
+    const float x1 = f[0], x0 = 1.0f - f[0], y1 = f[1], y0 = 1.0f - f[1];
+    const float z1 = f[2], z0 = 1.0f - f[2];
+    const float w[8] = {x0 * y0 * z0, x1 * y0 * z0, x0 * y1 * z0, x1 * y1 * z0,
+                        x0 * y0 * z1, x1 * y0 * z1, x0 * y1 * z1, x1 * y1 * z1};
+    for (int i = 0; i < 8; ++i) {
+      c.idx[i] = base + corner_offset_[i];
+      c.w[i] = w[i];
+    }
+    return c;
+  }
+
+  void set_up_corners() {
+    std::size_t step[3];
     for (int a = 0; a < 3; ++a) {
       const int n = dims_[a];
-      float u = (p_mm[a] - origin_mm_[a]) * inv_spacing_[a];
-      u = std::clamp(u, 0.0f, static_cast<float>(n - 1));
-      int i0 = static_cast<int>(u);
-      if (i0 >= n - 1) i0 = std::max(n - 2, 0);
-      const int i1 = std::min(i0 + 1, n - 1);
-      frac[a] = std::clamp(u - static_cast<float>(i0), 0.0f, 1.0f);
-      base[a][0] = static_cast<std::size_t>(i0);
-      base[a][1] = static_cast<std::size_t>(i1);
+      max_index_[a] = static_cast<float>(n - 1);
+      last_cell_[a] = std::max(n - 2, 0);  // the lower corner of the last cell
+      stride_[a] = a == 0 ? 1 : a == 1 ? static_cast<std::size_t>(dims_.x())
+                                      : static_cast<std::size_t>(dims_.x()) * static_cast<std::size_t>(dims_.y());
+      step[a] = n > 1 ? stride_[a] : 0;   // a single-voxel axis has no upper corner
     }
-    const std::size_t nx = static_cast<std::size_t>(dims_.x());
-    const std::size_t nxy = nx * static_cast<std::size_t>(dims_.y());
-    int i = 0;
-    for (int dz = 0; dz < 2; ++dz)
-      for (int dy = 0; dy < 2; ++dy)
-        for (int dx = 0; dx < 2; ++dx) {
-          c.idx[i] = base[2][dz] * nxy + base[1][dy] * nx + base[0][dx];
-          c.w[i] = (dx ? frac[0] : 1.0f - frac[0]) * (dy ? frac[1] : 1.0f - frac[1]) *
-                   (dz ? frac[2] : 1.0f - frac[2]);
-          ++i;
-        }
-    return c;
+    for (int i = 0; i < 8; ++i)
+      corner_offset_[i] = ((i & 1) ? step[0] : 0) + ((i & 2) ? step[1] : 0) + ((i & 4) ? step[2] : 0);
   }
 
   Vec3i dims_;
@@ -104,6 +114,10 @@ class ImageSampler {
   const float* gx_;
   const float* gy_;
   const float* gz_;
+  float max_index_[3];
+  int last_cell_[3];
+  std::size_t stride_[3];
+  std::size_t corner_offset_[8];
 };
 
 /// What the image says around the seed: the basis of the default τ_cost and of the "seed is not
