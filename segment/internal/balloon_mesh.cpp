@@ -619,31 +619,54 @@ RemeshCounts remesh(BalloonMesh& bm, const RemeshLimits& limits) {
   auto length2 = [&](Halfedge h) {
     return sqrnorm(bm.point_mm(bm.to_vertex(h)) - bm.point_mm(bm.from_vertex(h)));
   };
+  // The edges with a moving end, ascending, found from the moving vertices' rings: once most of
+  // the balloon rests on the wall, a pass costs what its moving front costs, not the whole mesh.
+  std::vector<std::uint32_t> candidates;
+  {
+    std::vector<std::uint8_t> seen(bm.n_edges(), 0);
+    for (std::uint32_t i = 0; i < bm.n_vertices(); ++i) {
+      const Vertex v{i};
+      if (bm.is_deleted(v) || bm.state(v).reason != StopReason::Moving) continue;
+      const Halfedge start = bm.halfedge(v);
+      Halfedge g = start;
+      do {
+        const std::uint32_t e = BalloonMesh::edge(g).idx;
+        if (!seen[e]) {
+          seen[e] = 1;
+          candidates.push_back(e);
+        }
+        g = bm.cw_rotated(g);
+      } while (g != start);
+    }
+    std::sort(candidates.begin(), candidates.end());
+  }
+  const std::uint32_t edges_before_splits = bm.n_edges();
   // Refinement. Splitting at the midpoint halves the edge; the new edges to the opposite vertices
-  // can still be long in slivers, so repeat a few passes.
-  for (int pass = 0; pass < 4; ++pass) {
+  // can still be long in slivers, so repeat a few passes. Only an edge made by the last pass, or
+  // the kept half of one it split, can be too long in the next.
+  std::vector<std::uint32_t> pass_edges = candidates, next_pass;
+  for (int pass = 0; pass < 4 && !pass_edges.empty(); ++pass) {
     const std::uint32_t n_edges = bm.n_edges();
-    int splits = 0;
-    for (std::uint32_t i = 0; i < n_edges; ++i) {
+    next_pass.clear();
+    for (const std::uint32_t i : pass_edges) {
       const Edge e{i};
       if (bm.is_deleted(e)) continue;
       const Halfedge h = BalloonMesh::halfedge(e, 0);
-      if (!has_moving_end(bm, h)) continue;
-      if (length2(h) > max2) {
-        split_edge_midpoint(bm, e);
-        ++splits;
-      }
+      if (!has_moving_end(bm, h) || !(length2(h) > max2)) continue;
+      split_edge_midpoint(bm, e);
+      ++counts.splits;
+      next_pass.push_back(i);
     }
-    counts.splits += splits;
-    if (splits == 0) break;
+    for (std::uint32_t i = n_edges; i < bm.n_edges(); ++i) next_pass.push_back(i);
+    std::swap(pass_edges, next_pass);
   }
   // Coarsening. 4/5 L below and 4/3 L above (Botsch and Kobbelt 2004): a collapse of an edge
   // shorter than 4/5 L cannot create an edge longer than 4/3 L in a regular neighbourhood, and
   // the max-edge check in collapse_edge_midpoint() guarantees it elsewhere, so the two passes
-  // do not undo each other.
+  // do not undo each other. Over the candidates and every edge the splits made, ascending.
   if (limits.min_edge_mm > 0.0f) {
-    const std::uint32_t n_edges = bm.n_edges();
-    for (std::uint32_t i = 0; i < n_edges; ++i) {
+    for (std::uint32_t i = edges_before_splits; i < bm.n_edges(); ++i) candidates.push_back(i);
+    for (const std::uint32_t i : candidates) {
       const Edge e{i};
       if (bm.is_deleted(e)) continue;
       const Halfedge h = BalloonMesh::halfedge(e, 0);
