@@ -161,6 +161,11 @@ void smooth_gaussian(const Volume& input, float sigma_mm, Volume& out) {
   });
   // Pass 2: z. Viewed as an nz x (nx*ny) image (one row per slice), the z-filter is a plain
   // vertical filter; column chunks keep each thread's rows short enough to stay in cache.
+  // filter2D with the (taps x 1) kernel rather than sepFilter2D(one, kz): sepFilter2D still runs
+  // a 1-tap row pass over every row, which made this pass ~30 % slower (2 threads, fastest of
+  // several runs: 128^3 2.0 -> 1.4 ms, 256^3 16.5 -> 12.3 ms). filter2D switches to a DFT for
+  // kernels of >= 50 taps (>= 130 with SSE3); keep sepFilter2D there, i.e. sigma_z > ~6 voxels.
+  const bool direct_z = kz.rows < 50;
   const int cols = static_cast<int>(slice);
   const int chunk = std::min(cols, 2048);
   const int chunks = (cols + chunk - 1) / chunk;
@@ -170,8 +175,13 @@ void smooth_gaussian(const Volume& input, float sigma_mm, Volume& out) {
     for (int c = r.start; c < r.end; ++c) {
       const cv::Range range(c * chunk, std::min(cols, (c + 1) * chunk));
       cv::Mat dst = out_all.colRange(range);
-      cv::sepFilter2D(tmp_all.colRange(range), dst, CV_32F, one, kz, cv::Point(-1, -1), 0.0,
-                      cv::BORDER_REPLICATE | cv::BORDER_ISOLATED);
+      if (direct_z) {
+        cv::filter2D(tmp_all.colRange(range), dst, CV_32F, kz, cv::Point(-1, -1), 0.0,
+                     cv::BORDER_REPLICATE | cv::BORDER_ISOLATED);
+      } else {
+        cv::sepFilter2D(tmp_all.colRange(range), dst, CV_32F, one, kz, cv::Point(-1, -1), 0.0,
+                        cv::BORDER_REPLICATE | cv::BORDER_ISOLATED);
+      }
     }
   });
 }
