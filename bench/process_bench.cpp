@@ -1,7 +1,10 @@
 // process_bench: per-stage time of the pipeline (daemon::run_pipeline, what `sonomeshd process`
 // and every daemon job run) on simulator phantoms of 128³ and 256³.
 //   process_bench [--sizes 128,256] [--phantoms cyst-needle,torus] [--repeat 5] [--format md|json]
+//                 [--fresh-buffers]
 // One warm-up run per case (FFTW plans, page faults), then the median of --repeat runs per stage.
+// The runs reuse one PipelineBuffers, as the daemon's worker does; --fresh-buffers allocates the
+// smoothed volume and gradient anew per run, as a single `sonomeshd process` does.
 // Targets (DESIGN/issue 4): total <= 100 ms at 128³, <= 750 ms at 256³.
 #include <CLI/CLI.hpp>
 #include <algorithm>
@@ -30,10 +33,12 @@ int main(int argc, char** argv) {
   std::vector<std::string> phantoms{"sphere", "cyst-needle"};
   int repeat = 5;
   std::string format = "md";
+  bool fresh_buffers = false;
   app.add_option("--sizes", sizes, "Volume edges (voxels)")->delimiter(',');
   app.add_option("--phantoms", phantoms, "Phantom names")->delimiter(',');
   app.add_option("--repeat", repeat, "Timed runs per case")->check(CLI::Range(1, 100));
   app.add_option("--format", format, "md or json")->check(CLI::IsMember({"md", "json"}));
+  app.add_flag("--fresh-buffers", fresh_buffers, "Allocate the smoothing buffers per run");
   try {
     app.parse(argc, argv);
   } catch (const CLI::CallForHelp& e) {
@@ -52,10 +57,15 @@ int main(int argc, char** argv) {
       for (const std::string& name : phantoms) {
         const sim::Phantom phantom = sim::make_phantom({.phantom = name, .size_vox = size});
         const daemon::PipelineConfig config;
-        daemon::PipelineResult result = daemon::run_pipeline(phantom.image, phantom.seed_mm, config);
+        daemon::PipelineBuffers buffers;
+        auto run = [&] {
+          if (fresh_buffers) buffers = daemon::PipelineBuffers{};
+          return daemon::run_pipeline(phantom.image, phantom.seed_mm, config, buffers);
+        };
+        daemon::PipelineResult result = run();
         std::vector<double> smooth, balloon, opening, reconstruct, mesh, reinflate, labels, total;
         for (int r = 0; r < repeat; ++r) {
-          result = daemon::run_pipeline(phantom.image, phantom.seed_mm, config);
+          result = run();
           const daemon::StageTimings& t = result.timings;
           smooth.push_back(t.smooth_ms);
           balloon.push_back(t.balloon_ms);

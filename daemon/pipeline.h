@@ -86,6 +86,19 @@ struct PipelineResult {
 PipelineResult run_pipeline(const volume::Volume& input, const Vec3f& seed_mm,
                             const PipelineConfig& config, std::stop_token stop = {});
 
+/// What one caller keeps from volume to volume (the daemon's worker): the smoothed volume and its
+/// gradient, 16 bytes per voxel. Fresh ones are allocated and zero-filled for every volume, which
+/// at 256³ cost more than the smoothing itself.
+struct PipelineBuffers {
+  volume::Volume smoothed;
+  volume::Gradient gradient;
+};
+
+/// Same, smoothing into `buffers` (reused when the next volume has the same dimensions).
+PipelineResult run_pipeline(const volume::Volume& input, const Vec3f& seed_mm,
+                            const PipelineConfig& config, PipelineBuffers& buffers,
+                            std::stop_token stop = {});
+
 /// Why `seed_mm` cannot start a balloon in `input` (outside the volume, or in bright tissue: the
 /// local mean around it is above the volume's Otsu threshold between dark target and tissue), or
 /// nullopt if it can. Used by `process` and by the daemon's seed tracking.

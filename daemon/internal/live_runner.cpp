@@ -504,7 +504,7 @@ void LiveRunner::process_one(QueuedVolume item) {
 
   PipelineResult result;
   try {
-    result = run_pipeline(input, seed_mm, config.pipeline, abort_.get_token());
+    result = run_pipeline(input, seed_mm, config.pipeline, buffers_, abort_.get_token());
   } catch (const std::exception& e) {
     fail(std::string("pipeline: ") + e.what(), std::move(line));
     return;

@@ -20,6 +20,7 @@
 #include "daemon/internal/run_config.h"
 #include "daemon/internal/run_stats.h"
 #include "daemon/internal/volume_queue.h"
+#include "daemon/pipeline.h"
 
 namespace sonomesh::daemon {
 
@@ -95,6 +96,7 @@ class LiveRunner {
   std::atomic<bool> stopping_{false};
   std::atomic<bool> fatal_{false};
   std::stop_source abort_;  // second signal: abort the volume in hand
+  PipelineBuffers buffers_;  // the worker's smoothing buffers, reused from volume to volume
 
   std::mutex seed_mutex_;
   std::optional<std::array<float, 3>> tracked_seed_mm_;

@@ -32,6 +32,13 @@ void count_stops(const std::vector<segment::StopReason>& stop, StopCounts& count
 
 PipelineResult run_pipeline(const volume::Volume& input, const Vec3f& seed_mm,
                             const PipelineConfig& config, std::stop_token stop) {
+  PipelineBuffers buffers;
+  return run_pipeline(input, seed_mm, config, buffers, std::move(stop));
+}
+
+PipelineResult run_pipeline(const volume::Volume& input, const Vec3f& seed_mm,
+                            const PipelineConfig& config, PipelineBuffers& buffers,
+                            std::stop_token stop) {
   const auto start = Clock::now();
   PipelineResult result;
   auto finish = [&](std::string error) {
@@ -49,8 +56,10 @@ PipelineResult run_pipeline(const volume::Volume& input, const Vec3f& seed_mm,
   // §0: smoothing and gradients.
   auto t = Clock::now();
   const float sigma_mm = config.smooth_sigma_mm.value_or(input.spacing_mm().minCoeff());
-  const volume::Volume smoothed = volume::smooth_gaussian(input, sigma_mm);
-  const volume::Gradient gradient = volume::central_gradient(smoothed);
+  volume::smooth_gaussian(input, sigma_mm, buffers.smoothed);
+  volume::central_gradient(buffers.smoothed, buffers.gradient);
+  const volume::Volume& smoothed = buffers.smoothed;
+  const volume::Gradient& gradient = buffers.gradient;
   result.timings.smooth_ms = ms_since(t);
   if (stop.stop_requested()) return finish("stopped");
 
