@@ -56,7 +56,9 @@ trap 'rm -f "$tmp"' EXIT
   echo "## Speed per stage"
   echo
   echo "Median wall-clock ms of $bench_repeat runs after one warm-up (\`bench/process_bench\`, the same"
-  echo "\`run_pipeline\` that \`sonomeshd process\` and every daemon job run; file I/O excluded)."
+  echo "\`run_pipeline\` that \`sonomeshd process\` and every daemon job run; file I/O excluded), with"
+  echo "the smoothing buffers reused from run to run as the daemon's worker does (a single"
+  echo "\`sonomeshd process\` allocates them: at 256³ that adds ~150 ms to \`smooth\`)."
   echo "\`total\` also includes the label rasterization and the deepest-point search for seed tracking."
   echo "Targets: ≤ 100 ms at 128³, ≤ 750 ms at 256³."
   echo
