@@ -433,10 +433,11 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::G
   std::vector<std::uint8_t> moved(a.pos.size(), kMoved | kMarks);
   // Face normals around the vertices that moved (around every active vertex after a remeshing
   // pass, which changed faces there; every face after a renumbering), then the vertex normals of
-  // equation (2) of the active vertices. Only faces around an active vertex are ever read (its normal, the
-  // curvature of its edges), so a face of stopped vertices may keep a stale normal. Collecting
-  // the faces from the rings makes an iteration cost what its moving front costs, not a pass over
-  // every face (a torus's last hundreds of iterations move a few hundred of its ~14000 faces).
+  // equation (2) of the active vertices. Only faces around an active vertex are ever read (its
+  // normal, the curvature of its edges), so a face of stopped vertices may keep a stale normal.
+  // Collecting the faces from the rings makes an iteration cost what its moving front costs, not
+  // a pass over every face (a torus's last hundreds of iterations move a few hundred of its
+  // ~14000 faces).
   std::vector<std::uint32_t> dirty_faces, face_stamp;
   std::uint32_t stamp = 0;
   auto face_normal = [&](std::uint32_t f) {
