@@ -56,11 +56,6 @@ class FrontMarks {
         origin_mm_(grid.origin_mm()),
         inv_spacing_(grid.spacing_mm().cwiseInverse()) {}
 
-  // Linear index of a voxel (for remembering which voxel a vertex last marked from).
-  std::int64_t linear(const Vec3i& ijk) const {
-    return ijk.x() + static_cast<std::int64_t>(dims_.x()) * (ijk.y() + static_cast<std::int64_t>(dims_.y()) * ijk.z());
-  }
-
   // Voxel containing p (voxel centres at integer indices); false outside the volume.
   bool voxel(const Vec3f& p_mm, Vec3i& ijk) const {
     const Vec3f u = (p_mm - origin_mm_).cwiseProduct(inv_spacing_) + Vec3f::Constant(0.5f);
@@ -603,7 +598,8 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::G
           continue;
         }
         Vec3i target_ijk;
-        if (marks.voxel(target, target_ijk) &&
+        const bool target_in_volume = marks.voxel(target, target_ijk);
+        if (target_in_volume &&
             FrontMarks::other_side(reader, target_ijk, n, options.self_intersection_cos)) {
           a.reason[v] = StopReason::SelfIntersection;  // a type-1 vertex
           continue;
@@ -612,8 +608,11 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::G
         const float t = cost.advance(sampler, p, d, a.cost[v], a.floor_level[v], a.path[v], stopped);
         a.next_pos[v] = p + t * d;
         moved[v] = kMoved;
-        Vec3i ijk;
-        const std::int64_t voxel = marks.voxel(a.next_pos[v], ijk) ? marks.linear(ijk) : -1;
+        // The voxel it ends in: the target's unless it stopped inside the step.
+        Vec3i ijk = target_ijk;
+        const bool in_volume = t == 1.0f ? target_in_volume : marks.voxel(a.next_pos[v], ijk);
+        const std::int64_t voxel =
+            in_volume ? static_cast<std::int64_t>(smoothed->linear_index(ijk.x(), ijk.y(), ijk.z())) : -1;
         if (voxel != a.marked_voxel[v]) {
           moved[v] |= kMarks;
           a.marked_voxel[v] = voxel;
@@ -751,10 +750,14 @@ BalloonResult reinflate(const volume::Volume& smoothed_in, const volume::Gradien
   // Closed at every vertex: in its link, the edges (b, c) opposite it in its faces (counter-
   // clockwise), every neighbour starts exactly one link edge and ends one. An open surface (a
   // border edge) or an edge with more than two faces fails this.
+  std::vector<std::uint32_t> from, to;  // any valence: a closed manifold has no bound on it
   for (std::uint32_t v = 0; v < nv; ++v) {
-    std::array<std::uint32_t, 64> from{}, to{};
     const std::uint32_t deg = face_begin[v + 1] - face_begin[v];
-    if (deg < 3 || deg > from.size()) throw std::invalid_argument("reinflate: the surface is not a closed manifold");
+    if (deg < 3)
+      throw std::invalid_argument("reinflate: the surface is not closed at vertex " + std::to_string(v) +
+                                  " (fewer than 3 faces)");
+    from.resize(deg);
+    to.resize(deg);
     for (std::uint32_t i = 0; i < deg; ++i) {
       const auto& t = surface.triangles[faces[face_begin[v] + i]];
       const int k = t[0] == v ? 0 : t[1] == v ? 1 : 2;
