@@ -257,6 +257,7 @@ std::optional<std::string> load_config_text(const std::string& text, const std::
     b.number("tau_cost_fraction", o.tau_cost_fraction, 0, 1);
     b.number("climb_backstop_fraction", o.climb_backstop_fraction, 0, 1);
     b.number("cost_window_vox", o.cost_window_vox, 0, 1e4);
+    b.boolean("rise_per_axis", o.rise_per_axis);
     b.boolean("noise_allowance", o.noise_allowance);
     b.number("tau_curv", o.tau_curv, 0, 2);
     b.number("self_intersection_cos", o.self_intersection_cos, -1, 1);
@@ -354,6 +355,7 @@ std::string to_toml(const RunConfig& c) {
     << "tau_cost_fraction = " << toml_float(b.tau_cost_fraction) << "\n"
     << "climb_backstop_fraction = " << toml_float(b.climb_backstop_fraction) << "\n"
     << "cost_window_vox = " << toml_float(b.cost_window_vox) << "  # 0: the paper's plain sum\n"
+    << "rise_per_axis = " << (b.rise_per_axis ? "true" : "false") << "  # false: the paper's dot product\n"
     << "noise_allowance = " << (b.noise_allowance ? "true" : "false") << "\n"
     << "tau_curv = " << toml_float(b.tau_curv) << "\n"
     << "self_intersection_cos = " << toml_float(b.self_intersection_cos) << "\n"

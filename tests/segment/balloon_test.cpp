@@ -189,13 +189,15 @@ TEST(Balloon, CystNeedleWrapsAroundTheNeedleWithoutLeaking) {
   // The deep half of the cyst lies in the needle's shadow (the needle enters from above).
   for (const auto& v : r.mesh.vertices)
     if (v.z() > centre.z() + 0.2f * (p.phantom.image.max_mm().z() - centre.z())) ++checked_below_needle;
-  // Spec: within one voxel of the cyst everywhere. Measured at 80^3 (deterministic: same vertices
-  // on any thread count): 11 of 2287 vertices, near the deep wall in the needle's shadow, are
-  // beyond 1.5 voxels of the staircase samples, the worst 2.0. So the bound asserted here is
-  // "at most 1 % beyond 1.5 voxels, none beyond 2.5" until the shadowed wall is handled better.
-  EXPECT_LE(outside_far, static_cast<int>(r.mesh.vertices.size()) / 100)
-      << "worst " << worst_vox << " voxels outside the cyst";
-  EXPECT_LE(worst_vox, 2.5f);
+  // Spec: within one voxel of the cyst everywhere, i.e. within 1.5 voxels of the staircase
+  // samples. Measured at 80^3 over speckle seeds 1-6 (deterministic: the same vertices on any
+  // thread count), with the rise summed per axis (BalloonOptions::rise_per_axis): no vertex beyond
+  // 1.5 voxels for 4 seeds, one for the other two (1.86 and 1.97 voxels, where the needle leaves
+  // the cyst in its own shadow's edge); this seed's worst is 1.35. With the paper's dot product
+  // 10-46 vertices were more than a voxel beyond the staircase and the worst 1.9-2.7 voxels. So
+  // the bound asserted is "at most two beyond 1.5 voxels, none beyond 2".
+  EXPECT_LE(outside_far, 2) << "worst " << worst_vox << " voxels outside the cyst";
+  EXPECT_LE(worst_vox, 2.0f);
   EXPECT_GT(checked_below_needle, 50) << "the balloon reached the shadowed deep wall";
 }
 
