@@ -69,9 +69,17 @@ int main(int argc, char** argv) {
     else if (a == "--plain-cost") relative = false;
     else if (a == "--max-area" && i + 1 < argc) max_area = static_cast<float>(std::atof(argv[++i]));
     else if (a == "--fraction" && i + 1 < argc) fraction = static_cast<float>(std::atof(argv[++i]));
-    else names.push_back(a);
+    else if (a.rfind("--", 0) == 0) {
+      std::fprintf(stderr, "balloon_bench: unknown option '%s' (see the usage at the top of bench/balloon_bench.cpp)\n", a.c_str());
+      return 2;
+    } else names.push_back(a);
   }
   if (names.empty()) names = {"sphere", "torus", "cyst-needle"};
+  for (const auto& name : names)
+    if (std::find(sim::phantom_names().begin(), sim::phantom_names().end(), name) == sim::phantom_names().end()) {
+      std::fprintf(stderr, "balloon_bench: unknown phantom '%s'\n", name.c_str());
+      return 2;
+    }
   std::printf("%-12s %5s %13s %6s %6s  %-28s %7s  %s\n", "phantom", "size", "ms med/min", "iters",
               "verts", "stops mov/bnd/crv/self/lim", "tau", "wall dist vox (bnd) mean/p95/max, inside-truth %, bnd beyond 4 vox");
   for (const auto& name : names) {
@@ -125,8 +133,9 @@ int main(int argc, char** argv) {
                 ms[ms.size() / 2], ms.front(), r.stats.iterations, r.mesh.vertices.size(), stops, r.stats.tau_cost_used,
                 mean, dist.empty() ? 0.0f : dist[dist.size() * 95 / 100],
                 dist.empty() ? 0.0f : dist.back(), 100.0 * inside / std::max<std::size_t>(1, r.mesh.vertices.size()), far);
-    std::printf("    seed level %.1f sigma %.1f tissue %.1f rho %.2f/mm r0 %.2f mm, remesh %d (splits %d, collapses %d)%s%s\n",
-                r.stats.seed_level, r.stats.seed_sigma, r.stats.tissue_level, r.stats.noise_rise_per_mm, r.stats.initial_radius_mm,
+    std::printf("    seed level %.1f sigma %.1f tissue %.1f rho %.3f/mm (per-axis split +%.3f) r0 %.2f mm, remesh %d (splits %d, collapses %d)%s%s\n",
+                r.stats.seed_level, r.stats.seed_sigma, r.stats.tissue_level, r.stats.noise_rise_per_mm,
+                r.stats.axis_split_rise_per_mm, r.stats.initial_radius_mm,
                 r.stats.remesh_passes, r.stats.splits, r.stats.collapses, r.stats.stalled ? ", stalled" : "",
                 r.converged ? ", converged" : "");
     std::printf("    phases (last run) ms: evolve %.1f, normals %.1f, mark A_t %.1f, remesh %.1f; %lld vertex-iterations\n",
