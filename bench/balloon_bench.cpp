@@ -3,7 +3,8 @@
 // pipeline computes them once per volume for every stage).
 //
 //   balloon_bench [--size N] [--repeat R] [--threads T] [--seed N] [--max-iterations N]
-//                 [--fraction F] [--max-area A] [--plain-cost] [--noise-allowance] [phantom ...]
+//                 [--fraction F] [--max-area A] [--plain-cost] [--dot-rise] [--noise-allowance]
+//                 [phantom ...]
 //
 // Prints per phantom: balloon time (median and fastest of R runs: on a shared machine the fastest
 // is the steadier figure), iterations, vertex count, stop counts, τ_cost, the time per phase, and
@@ -54,6 +55,7 @@ int main(int argc, char** argv) {
   int size = 128, repeat = 5, threads = 0, max_iterations = 2000, phantom_seed = 11;
   // The library's defaults unless a flag says otherwise: the bench measures what the daemon runs.
   bool noise_allowance = segment::BalloonOptions{}.noise_allowance, relative = true;
+  bool per_axis = segment::BalloonOptions{}.rise_per_axis;
   float fraction = segment::BalloonOptions{}.tau_cost_fraction;
   float max_area = segment::BalloonOptions{}.max_area_fraction;
   std::vector<std::string> names;
@@ -67,6 +69,7 @@ int main(int argc, char** argv) {
     else if (a == "--noise-allowance") noise_allowance = true;
     else if (a == "--no-noise-allowance") noise_allowance = false;
     else if (a == "--plain-cost") relative = false;
+    else if (a == "--dot-rise") per_axis = false;
     else if (a == "--max-area" && i + 1 < argc) max_area = static_cast<float>(std::atof(argv[++i]));
     else if (a == "--fraction" && i + 1 < argc) fraction = static_cast<float>(std::atof(argv[++i]));
     else if (a.rfind("--", 0) == 0) {
@@ -91,7 +94,7 @@ int main(int argc, char** argv) {
     segment::BalloonResult r;
     for (int k = 0; k < repeat; ++k) {
       const auto t0 = std::chrono::steady_clock::now();
-      r = segment::inflate_balloon(smoothed, gradient, ph.seed_mm, {.relative_cost = relative, .tau_cost_fraction = fraction, .noise_allowance = noise_allowance, .max_iterations = max_iterations, .max_area_fraction = max_area, .threads = threads});
+      r = segment::inflate_balloon(smoothed, gradient, ph.seed_mm, {.relative_cost = relative, .tau_cost_fraction = fraction, .rise_per_axis = per_axis, .noise_allowance = noise_allowance, .max_iterations = max_iterations, .max_area_fraction = max_area, .threads = threads});
       ms.push_back(std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count());
     }
     std::sort(ms.begin(), ms.end());
@@ -133,9 +136,8 @@ int main(int argc, char** argv) {
                 ms[ms.size() / 2], ms.front(), r.stats.iterations, r.mesh.vertices.size(), stops, r.stats.tau_cost_used,
                 mean, dist.empty() ? 0.0f : dist[dist.size() * 95 / 100],
                 dist.empty() ? 0.0f : dist.back(), 100.0 * inside / std::max<std::size_t>(1, r.mesh.vertices.size()), far);
-    std::printf("    seed level %.1f sigma %.1f tissue %.1f rho %.3f/mm (per-axis split +%.3f) r0 %.2f mm, remesh %d (splits %d, collapses %d)%s%s\n",
-                r.stats.seed_level, r.stats.seed_sigma, r.stats.tissue_level, r.stats.noise_rise_per_mm,
-                r.stats.axis_split_rise_per_mm, r.stats.initial_radius_mm,
+    std::printf("    seed level %.1f sigma %.1f tissue %.1f rho %.2f/mm r0 %.2f mm, remesh %d (splits %d, collapses %d)%s%s\n",
+                r.stats.seed_level, r.stats.seed_sigma, r.stats.tissue_level, r.stats.noise_rise_per_mm, r.stats.initial_radius_mm,
                 r.stats.remesh_passes, r.stats.splits, r.stats.collapses, r.stats.stalled ? ", stalled" : "",
                 r.converged ? ", converged" : "");
     std::printf("    phases (last run) ms: evolve %.1f, normals %.1f, mark A_t %.1f, remesh %.1f; %lld vertex-iterations\n",

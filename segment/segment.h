@@ -70,12 +70,12 @@ struct BalloonOptions {
                                   // vertex crosses the cyst wall and that edge together, the dot
                                   // product netted the two and the wall cost too little (80³
                                   // cyst-needle, seeds 1-6: worst vertex 1.9-2.7 voxels outside
-                                  // the staircase wall, with the split 0.7-2.0). The
-                                  // split also counts speckle's mixed-sign steps; what that adds
-                                  // is measured on the seed's rays inside the target and added to
-                                  // τ_cost along the path (as the noise allowance does, but only
-                                  // for what the split adds), so lit walls stop where they did.
-                                  // false: the paper's dot product.
+                                  // the staircase wall; with the split 0.7-1.5). The split also
+                                  // counts speckle's mixed-sign steps, so lit walls stop ~0.15
+                                  // voxel earlier (the second pass, reinflate, gives that back).
+                                  // Allowing for that extra speckle in τ_cost was measured and
+                                  // let 256³ balloons leak along the needle. false: the paper's
+                                  // dot product.
   bool noise_allowance = false;   // P stops when Ψ_cost(P) > τ_cost + ρ·path(P), ρ the rate at
                                   // which speckle alone raises Ψ_cost inside the target (measured
                                   // on the rays from the seed), path(P) the distance P travelled;
@@ -113,7 +113,6 @@ struct BalloonStats {
   float seed_sigma = 0.0f;           // its standard deviation
   float tissue_level = 0.0f;         // estimated surrounding tissue level (ray sampling)
   float noise_rise_per_mm = 0.0f;    // ρ, grey levels per mm
-  float axis_split_rise_per_mm = 0.0f;  // what rise_per_axis adds to ρ (same scale); its allowance
   float initial_radius_mm = 0.0f;
   int remesh_passes = 0;
   int splits = 0;

@@ -185,6 +185,13 @@ void parallel_for(tbb::task_arena& arena, bool serial, std::size_t n, F&& f) {
   });
 }
 
+// The increment of Ψ_cost for a step d through a point with gradient g, before the scale's
+// weight: the paper's max(0, <g, d>), or summed per grid axis (BalloonOptions::rise_per_axis).
+float rise_along(const Vec3f& g, const Vec3f& d, bool per_axis) {
+  if (!per_axis) return std::max(0.0f, g.dot(d));
+  return std::max(0.0f, g.x() * d.x()) + std::max(0.0f, g.y() * d.y()) + std::max(0.0f, g.z() * d.z());
+}
+
 // The boundary cost's stop rule (method.md §2 and the departures documented in segment.h),
 // shared by the first pass and the re-inflation.
 struct CostRule {
@@ -194,7 +201,6 @@ struct CostRule {
   float window_mm = 0.0f;     // 0: the plain sum
   float noise_per_mm = 0.0f;  // 0: no noise allowance
   bool per_axis = false;      // BalloonOptions::rise_per_axis
-  float split_per_mm = 0.0f;  // what the per-axis split adds to the speckle's rate: its allowance
 
   // Advances one vertex by the Euler step d from p: its Ψ_cost, darkest level and path. Returns
   // the fraction of d to take (1 unless it stops inside the step) and sets `stopped`.
@@ -210,15 +216,13 @@ struct CostRule {
     const float level = scale.map(value);
     floor_level = std::min(floor_level, level);
     const float decayed = window_mm > 0.0f ? cost * std::exp(-step_mm / window_mm) : cost;  // leaky
-    const float rise = internal::rise_along(grad, d, per_axis) * scale.weight(value);
+    const float rise = rise_along(grad, d, per_axis) * scale.weight(value);
     cost = decayed + rise;
     const float travelled_mm = path_mm + step_mm;
-    // What speckle is expected to add over the path (with a window: what survives its decay).
-    const float noise_rate = noise_per_mm + (per_axis ? split_per_mm : 0.0f);
     float threshold = tau;
-    if (noise_rate > 0.0f)
-      threshold += window_mm > 0.0f ? noise_rate * window_mm * (1.0f - std::exp(-travelled_mm / window_mm))
-                                    : noise_rate * travelled_mm;
+    if (noise_per_mm > 0.0f)
+      threshold += window_mm > 0.0f ? noise_per_mm * window_mm * (1.0f - std::exp(-travelled_mm / window_mm))
+                                    : noise_per_mm * travelled_mm;
     // Where Ψ_cost crosses τ_cost inside the step, the vertex stops at the crossing (the rise
     // taken as even along the step), so where it stops does not depend on the step length.
     float t = 1.0f;
@@ -368,10 +372,8 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::G
                       .tau_climb = tau_climb,
                       .window_mm = options.cost_window_vox * vox_mm,
                       .noise_per_mm = options.noise_allowance ? seed.noise_rise_per_mm : 0.0f,
-                      .per_axis = options.rise_per_axis,
-                      .split_per_mm = seed.axis_split_rise_per_mm};
+                      .per_axis = options.rise_per_axis};
   stats.noise_rise_per_mm = seed.noise_rise_per_mm;
-  stats.axis_split_rise_per_mm = seed.axis_split_rise_per_mm;
   stats.tau_cost_used = tau_cost;
   stats.tau_climb_used = tau_climb;
 
@@ -785,9 +787,7 @@ BalloonResult reinflate(const volume::Volume& smoothed_in, const volume::Gradien
   // The first pass's rule, seed statistics and thresholds: both passes stop at the same level.
   // Except the per-axis split of the rise (rise_per_axis): the cancellation it prevents builds up
   // along the first pass's long paths beside a shadow's edge, while this pass moves at most
-  // max_move_vox from the wall. Measured over the 32 accuracy cases, the split with its allowance
-  // here pushed vertices out (volume ratio 1.02 -> 1.04, three cases below Dice 0.95 instead of
-  // one).
+  // max_move_vox from the wall, and the split's speckle would only hold it back.
   const internal::CostScale scale = cost_scale(options.relative_cost, first_pass.tissue_level);
   const CostRule cost{.scale = scale,
                       .tau = first_pass.tau_cost_used,

@@ -127,13 +127,6 @@ class ImageSampler {
 /// counts relative to the level it starts from. Ultrasound attenuation and acoustic shadows are
 /// multiplicative, so in this scale a wall in a needle's shadow (all levels × 0.3) rises as much
 /// as an unshadowed one.
-/// The increment of Ψ_cost for a step d through a point with gradient g, before the scale's
-/// weight: the paper's max(0, <g, d>), or per grid axis (BalloonOptions::rise_per_axis).
-inline float rise_along(const Vec3f& g, const Vec3f& d, bool per_axis) {
-  if (!per_axis) return std::max(0.0f, g.dot(d));
-  return std::max(0.0f, g.x() * d.x()) + std::max(0.0f, g.y() * d.y()) + std::max(0.0f, g.z() * d.z());
-}
-
 struct CostScale {
   bool relative = false;
   float floor = 1.0f;
@@ -153,8 +146,6 @@ struct SeedRegion {
   float safe_radius_mm = 0.0f;  // distance along the rays that stays at the seed's level
   float noise_rise_per_mm = 0.0f;  // median over rays of the positive rise per mm (in the cost
                                    // scale) inside the target: what speckle adds to Ψ_cost per mm
-  float axis_split_rise_per_mm = 0.0f;  // the same rate's increase when the rise is summed per
-                                        // grid axis (BalloonOptions::rise_per_axis)
 };
 
 /// Samples a ball of `ball_radius_mm` around the seed and `ray_count` rays out to the volume edge.

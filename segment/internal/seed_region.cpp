@@ -51,7 +51,6 @@ SeedRegion analyse_seed(const ImageSampler& sampler, const volume::Volume& grid,
   // vertex computes it (central-difference gradient, not sample differences, which keep more of
   // the speckle's high frequencies and overstate the rate).
   std::vector<std::vector<float>> rises(static_cast<std::size_t>(ray_count));
-  std::vector<std::vector<float>> split_excess(static_cast<std::size_t>(ray_count));  // per-axis − dot
   std::vector<float> upper;
   for (int q = 0; q < ray_count; ++q) {
     const float z = 1.0f - 2.0f * (q + 0.5f) / ray_count;
@@ -60,7 +59,6 @@ SeedRegion analyse_seed(const ImageSampler& sampler, const volume::Volume& grid,
     const Vec3f dir(rad * std::cos(phi), rad * std::sin(phi), z);
     auto& profile = profiles[static_cast<std::size_t>(q)];
     auto& rise = rises[static_cast<std::size_t>(q)];
-    auto& excess = split_excess[static_cast<std::size_t>(q)];
     for (float t = 0.0f;; t += step) {
       const Vec3f p = seed_mm + t * dir;
       if (!grid.contains_mm(p)) break;
@@ -68,9 +66,7 @@ SeedRegion analyse_seed(const ImageSampler& sampler, const volume::Volume& grid,
       Vec3f grad;
       sampler.value_and_gradient(p, value, grad);
       profile.push_back(value);
-      const float dot = rise_along(grad, dir * step, false);
-      rise.push_back(dot * scale.weight(value));
-      excess.push_back((rise_along(grad, dir * step, true) - dot) * scale.weight(value));
+      rise.push_back(std::max(0.0f, grad.dot(dir) * step) * scale.weight(value));
     }
     if (profile.size() >= 8) {
       std::vector<float> sorted = profile;
@@ -87,7 +83,7 @@ SeedRegion analyse_seed(const ImageSampler& sampler, const volume::Volume& grid,
   const float crossing = r.level + 0.5f * std::max(tissue_guess - r.level, 3.0f * sigma_eff);
   const int sustain = static_cast<int>(std::ceil(2.0f * voxel_mm / step));  // two voxels
 
-  std::vector<float> tissue, rates, split_rates;
+  std::vector<float> tissue, rates;
   float safe_mm = 1e30f;
   for (std::size_t q = 0; q < profiles.size(); ++q) {
     const auto& profile = profiles[q];
@@ -110,18 +106,13 @@ SeedRegion analyse_seed(const ImageSampler& sampler, const volume::Volume& grid,
     // the part of the ray that is clearly before the wall.
     const int inside_end = std::min(hit - 2 * sustain, static_cast<int>(0.6f * static_cast<float>(hit)));
     if (inside_end >= 4) {
-      float rise = 0.0f, split = 0.0f;
-      for (int s = 0; s < inside_end; ++s) {
-        rise += rises[q][static_cast<std::size_t>(s)];
-        split += split_excess[q][static_cast<std::size_t>(s)];
-      }
+      float rise = 0.0f;
+      for (int s = 0; s < inside_end; ++s) rise += rises[q][static_cast<std::size_t>(s)];
       rates.push_back(rise / (inside_end * step));
-      split_rates.push_back(split / (inside_end * step));
     }
   }
   r.tissue_level = median(tissue);
   r.noise_rise_per_mm = median(rates);
-  r.axis_split_rise_per_mm = median(split_rates);
   r.safe_radius_mm = std::max(0.0f, safe_mm - voxel_mm);
   return r;
 }
