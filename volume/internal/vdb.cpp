@@ -117,8 +117,12 @@ namespace {
 
 std::int32_t encode_normal(const Vec3f& n) {
   auto q = [](float v) {
-    return static_cast<std::uint32_t>(static_cast<std::uint8_t>(
-        static_cast<std::int8_t>(std::lround(std::clamp(v, -1.0f, 1.0f) * 127.0f))));
+    // lround (halves away from zero) without its libm call: x − trunc(x) is exact for |x| <= 127.
+    const float x = std::clamp(v, -1.0f, 1.0f) * 127.0f;
+    const int t = static_cast<int>(x);
+    const float frac = x - static_cast<float>(t);
+    const int rounded = t + (frac >= 0.5f ? 1 : frac <= -0.5f ? -1 : 0);
+    return static_cast<std::uint32_t>(static_cast<std::uint8_t>(static_cast<std::int8_t>(rounded)));
   };
   // Bit 24 keeps a zero normal distinguishable from the background.
   return static_cast<std::int32_t>(q(n.x()) | (q(n.y()) << 8) | (q(n.z()) << 16) | (1u << 24));
