@@ -436,7 +436,7 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::G
   constexpr std::uint8_t kMoved = 1, kMarks = 2;
   std::vector<std::uint8_t> moved(a.pos.size(), kMoved | kMarks);
   // Face normals around the vertices that moved (around every active vertex after a remeshing
-  // pass, which changed faces there; every face after a renumbering), then the vertex normals of
+  // pass, which changed faces there and may have renumbered them all), then the vertex normals of
   // equation (2) of the active vertices. Only faces around an active vertex are ever read (its
   // normal, the curvature of its edges), so a face of stopped vertices may keep a stale normal.
   // Collecting the faces from the rings makes an iteration cost what its moving front costs, not
@@ -450,30 +450,23 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::G
     const float len = n.norm();
     a.face_normal[f] = len > 0.0f ? Vec3f(n / len) : Vec3f::Zero();
   };
-  enum class Faces { MovedRings, ActiveRings, All };
+  enum class Faces { MovedRings, ActiveRings };
   auto compute_normals = [&](Faces which) {
-    if (which == Faces::All) {
-      face_stamp.assign(a.tri.size(), stamp);
-      parallel_for(arena, serial, a.tri.size(), [&](std::size_t b, std::size_t e) {
-        for (std::size_t f = b; f < e; ++f) face_normal(static_cast<std::uint32_t>(f));
-      });
-    } else {
-      ++stamp;
-      dirty_faces.clear();
-      face_stamp.resize(a.tri.size(), 0);  // faces a remeshing pass added
-      for (const std::uint32_t v : active) {
-        if (which == Faces::MovedRings && !moved[v]) continue;
-        for (std::uint32_t r = a.ring_begin[v]; r < a.ring_begin[v + 1]; ++r) {
-          const std::uint32_t f = a.ring_face_left[r];
-          if (face_stamp[f] == stamp) continue;
-          face_stamp[f] = stamp;
-          dirty_faces.push_back(f);
-        }
+    ++stamp;  // a value no face holds yet, however a remeshing pass renumbered them
+    dirty_faces.clear();
+    face_stamp.resize(a.tri.size(), 0);  // faces a remeshing pass added
+    for (const std::uint32_t v : active) {
+      if (which == Faces::MovedRings && !moved[v]) continue;
+      for (std::uint32_t r = a.ring_begin[v]; r < a.ring_begin[v + 1]; ++r) {
+        const std::uint32_t f = a.ring_face_left[r];
+        if (face_stamp[f] == stamp) continue;
+        face_stamp[f] = stamp;
+        dirty_faces.push_back(f);
       }
-      parallel_for(arena, serial, dirty_faces.size(), [&](std::size_t b, std::size_t e) {
-        for (std::size_t i = b; i < e; ++i) face_normal(dirty_faces[i]);
-      });
     }
+    parallel_for(arena, serial, dirty_faces.size(), [&](std::size_t b, std::size_t e) {
+      for (std::size_t i = b; i < e; ++i) face_normal(dirty_faces[i]);
+    });
     parallel_for(arena, serial, active.size(), [&](std::size_t b, std::size_t e) {
       for (std::size_t i = b; i < e; ++i) {
         const std::uint32_t v = active[i];
@@ -539,7 +532,7 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::G
   };
 
   all_active();
-  compute_normals(Faces::All);
+  compute_normals(Faces::ActiveRings);
   mark_front();
 
   // Is an edge with a moving end out of [ε_min, ε_max]? Remeshing (and the re-extraction of the
@@ -677,16 +670,15 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::G
       const auto t_remesh = Clock::now();
       write_back(a, bm);
       const auto counts = internal::remesh(bm, limits);
-      // Collapses renumber the mesh (its garbage is collected): then every face is new to the
-      // arrays. A pass of splits only keeps the old faces' indices and adds new ones.
-      const bool renumbered = counts.collapses > 0;
       ++stats.remesh_passes;
       stats.splits += counts.splits;
       stats.collapses += counts.collapses;
       extract(bm, a);
       moved.assign(a.pos.size(), 0);
       all_active();
-      compute_normals(renumbered ? Faces::All : Faces::ActiveRings);
+      // Also after collapses renumbered the mesh: whatever a face index held before, the faces
+      // around the active vertices, the only ones read, are computed afresh.
+      compute_normals(Faces::ActiveRings);
       stats.remesh_ms += ms_since(t_remesh);
       if (a.pos.size() > max_vertices) {
         stats.leaked = true;
