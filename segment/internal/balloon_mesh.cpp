@@ -580,23 +580,33 @@ bool collapse_edge_midpoint(BalloonMesh& bm, Halfedge h, float max_edge_mm) {
   // Otherwise both melt into the midpoint (the paper's COARSENING).
   const StopReason r_from = bm.state(v_from).reason, r_to = bm.state(v_to).reason;
   if (r_to == StopReason::Moving && r_from != StopReason::Moving) return false;  // try the twin
+  const bool onto_to = r_from == StopReason::Moving && r_to != StopReason::Moving;
+  const Vec3f mid_mm = onto_to ? bm.point_mm(v_to) : Vec3f((bm.point_mm(v_from) + bm.point_mm(v_to)) * 0.5f);
+  // No over-long edge: no neighbour of either end may end up further than ε_max from the merged
+  // vertex. Tested before the rest: it refuses about nine in ten attempts (128³ phantoms: 47000-
+  // 64000 refusals for 5000-6000 collapses), and a pass over the two rings is its whole cost.
+  for (const Vertex v : {v_from, v_to}) {
+    const Halfedge start = bm.halfedge(v);
+    Halfedge g = start;
+    do {
+      const Vertex q = bm.to_vertex(g);
+      g = bm.cw_rotated(g);
+      if (q != v_from && q != v_to && norm(bm.point_mm(q) - mid_mm) > max_edge_mm) return false;
+    } while (g != start);
+  }
   if (bm.valence(v_from) + bm.valence(v_to) < 8) return false;  // result would have valence < 4
   // The link condition keeps the mesh a 2-manifold of genus 0: it refuses collapses that would
   // pinch a vertex or join two sheets (e.g. a valence-3 tip).
   if (!bm.is_collapse_ok(h)) return false;
-  const bool onto_to = r_from == StopReason::Moving && r_to != StopReason::Moving;
-  const Vec3f mid_mm = onto_to ? bm.point_mm(v_to) : Vec3f((bm.point_mm(v_from) + bm.point_mm(v_to)) * 0.5f);
   const Face f_left = bm.face(h), f_right = bm.face(BalloonMesh::opposite(h));
-  // No fold, no sliver, no over-long edge: every surviving triangle around either end must keep
-  // roughly its orientation after both ends move to the midpoint.
+  // No fold, no sliver: every surviving triangle around either end must keep roughly its
+  // orientation after both ends move to the midpoint.
   for (const Vertex v : {v_from, v_to}) {
     const Halfedge start = bm.halfedge(v);
     Halfedge g = start;
     do {
       const Face f = bm.face(g);
-      const Vertex q = bm.to_vertex(g);
       g = bm.cw_rotated(g);
-      if (q != v_from && q != v_to && norm(bm.point_mm(q) - mid_mm) > max_edge_mm) return false;
       if (f == f_left || f == f_right) continue;
       std::array<Vec3f, 3> before, after;
       Halfedge fh = bm.halfedge(f);
