@@ -160,8 +160,11 @@ FrontGrid& FrontGrid::operator=(FrontGrid&&) noexcept = default;
 bool FrontGrid::mark(const Vec3i& ijk, const Vec3f& normal) {
   if (!impl_) throw std::logic_error("FrontGrid: used after move");
   const openvdb::Coord c = coord(ijk);
-  if (impl_->accessor.isValueOn(c)) return false;
-  impl_->accessor.setValueOn(c, encode_normal(normal));
+  // One descent to the leaf (created if the voxel's brick has none yet, as setValueOn would),
+  // then test and set in it: the accessor's isValueOn and setValueOn descended twice.
+  auto* leaf = impl_->accessor.touchLeaf(c);
+  if (leaf->isValueOn(c)) return false;
+  leaf->setValueOn(c, encode_normal(normal));
   return true;
 }
 
