@@ -5,6 +5,7 @@
 #include <array>
 #include <cmath>
 #include <cstring>
+#include <initializer_list>
 #include <set>
 #include <stdexcept>
 #include <utility>
@@ -571,6 +572,21 @@ Vertex split_edge_midpoint(BalloonMesh& bm, Edge e) {
   return vn;
 }
 
+// Whether test(g) holds for every outgoing halfedge g of each vertex in `vs`, in ring order,
+// stopping at the first that fails.
+template <typename Test>
+bool every_outgoing(const BalloonMesh& bm, std::initializer_list<Vertex> vs, Test test) {
+  for (const Vertex v : vs) {
+    const Halfedge start = bm.halfedge(v);
+    Halfedge g = start;
+    do {
+      if (!test(g)) return false;
+      g = bm.cw_rotated(g);
+    } while (g != start);
+  }
+  return true;
+}
+
 bool collapse_edge_midpoint(BalloonMesh& bm, Halfedge h, float max_edge_mm) {
   if (bm.is_deleted(BalloonMesh::edge(h))) return false;
   // (Every test below only refuses, so their order is free: the cheap ones come first.)
@@ -585,15 +601,11 @@ bool collapse_edge_midpoint(BalloonMesh& bm, Halfedge h, float max_edge_mm) {
   // No over-long edge: no neighbour of either end may end up further than ε_max from the merged
   // vertex. Tested before the rest: it refuses about nine in ten attempts (128³ phantoms: 47000-
   // 64000 refusals for 5000-6000 collapses), and a pass over the two rings is its whole cost.
-  for (const Vertex v : {v_from, v_to}) {
-    const Halfedge start = bm.halfedge(v);
-    Halfedge g = start;
-    do {
-      const Vertex q = bm.to_vertex(g);
-      g = bm.cw_rotated(g);
-      if (q != v_from && q != v_to && norm(bm.point_mm(q) - mid_mm) > max_edge_mm) return false;
-    } while (g != start);
-  }
+  const bool short_enough = every_outgoing(bm, {v_from, v_to}, [&](Halfedge g) {
+    const Vertex q = bm.to_vertex(g);
+    return q == v_from || q == v_to || !(norm(bm.point_mm(q) - mid_mm) > max_edge_mm);
+  });
+  if (!short_enough) return false;
   if (bm.valence(v_from) + bm.valence(v_to) < 8) return false;  // result would have valence < 4
   // The link condition keeps the mesh a 2-manifold of genus 0: it refuses collapses that would
   // pinch a vertex or join two sheets (e.g. a valence-3 tip).
@@ -601,27 +613,22 @@ bool collapse_edge_midpoint(BalloonMesh& bm, Halfedge h, float max_edge_mm) {
   const Face f_left = bm.face(h), f_right = bm.face(BalloonMesh::opposite(h));
   // No fold, no sliver: every surviving triangle around either end must keep roughly its
   // orientation after both ends move to the midpoint.
-  for (const Vertex v : {v_from, v_to}) {
-    const Halfedge start = bm.halfedge(v);
-    Halfedge g = start;
-    do {
-      const Face f = bm.face(g);
-      g = bm.cw_rotated(g);
-      if (f == f_left || f == f_right) continue;
-      std::array<Vec3f, 3> before, after;
-      Halfedge fh = bm.halfedge(f);
-      for (int i = 0; i < 3; ++i, fh = bm.next(fh)) {
-        const Vertex fv = bm.to_vertex(fh);
-        before[i] = bm.point_mm(fv);
-        after[i] = (fv == v_from || fv == v_to) ? mid_mm : before[i];
-      }
-      const Vec3f nb = unit_normal(before[0], before[1], before[2]);
-      const Vec3f na_raw = cross(after[1] - after[0], after[2] - after[0]);
-      const float area2 = norm(na_raw);
-      if (!(area2 > 1e-12f)) return false;
-      if (dot(nb, divided(na_raw, area2)) < 0.5f) return false;
-    } while (g != start);
-  }
+  const bool no_fold = every_outgoing(bm, {v_from, v_to}, [&](Halfedge g) {
+    const Face f = bm.face(g);
+    if (f == f_left || f == f_right) return true;
+    std::array<Vec3f, 3> before, after;
+    Halfedge fh = bm.halfedge(f);
+    for (int i = 0; i < 3; ++i, fh = bm.next(fh)) {
+      const Vertex fv = bm.to_vertex(fh);
+      before[i] = bm.point_mm(fv);
+      after[i] = (fv == v_from || fv == v_to) ? mid_mm : before[i];
+    }
+    const Vec3f nb = unit_normal(before[0], before[1], before[2]);
+    const Vec3f na_raw = cross(after[1] - after[0], after[2] - after[0]);
+    const float area2 = norm(na_raw);
+    return area2 > 1e-12f && !(dot(nb, divided(na_raw, area2)) < 0.5f);
+  });
+  if (!no_fold) return false;
   VertexState s = onto_to ? bm.state(v_to) : merged_state(bm.state(v_from), bm.state(v_to));
   if (!onto_to) {
     // Ψ_cost only grows along a path; the merged vertex continues the longer of the two. (With
