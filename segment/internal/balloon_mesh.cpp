@@ -58,8 +58,8 @@ bool has_moving_end(const BalloonMesh& bm, Halfedge h) {
 // filled from at or beyond it. `deleted` holds 1 for a deleted element (swap() moves the flags
 // too). Fills tail_map[old − new size] = new index for the live elements that moved and returns
 // the new size. The holes are found with memchr and the map covers only the tail: a scan of
-// every flag and a full identity map were a third of a collection's instructions, for the few
-// dozen elements a remeshing pass deletes.
+// every flag and a full identity map were ~40 % of a collection's instructions (128³ torus), for
+// the few dozen elements a remeshing pass deletes.
 template <typename Swap>
 std::uint32_t compact(const std::vector<std::uint8_t>& deleted, std::uint32_t n_deleted, Swap swap,
                       std::vector<std::uint32_t>& tail_map) {
