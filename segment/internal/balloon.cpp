@@ -173,6 +173,12 @@ void write_back(const Arrays& a, BalloonMesh& bm) {
         .marked_voxel = a.marked_voxel[v]};
 }
 
+using Clock = std::chrono::steady_clock;
+
+double ms_since(Clock::time_point t) {
+  return std::chrono::duration<double, std::milli>(Clock::now() - t).count();
+}
+
 template <typename F>
 void parallel_for(tbb::task_arena& arena, bool serial, std::size_t n, F&& f) {
   if (serial || n < 1024) {
@@ -305,7 +311,7 @@ int euler_characteristic(const Mesh& mesh) {
 BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::Gradient& gradient,
                               const Vec3f& seed_mm, const BalloonOptions& options,
                               std::stop_token stop) {
-  const auto t0 = std::chrono::steady_clock::now();
+  const auto t0 = Clock::now();
   if (smoothed_in.empty()) throw std::invalid_argument("inflate_balloon: empty volume");
   check_gradient(smoothed_in, gradient, "inflate_balloon");
   if (!smoothed_in.contains_mm(seed_mm))
@@ -336,8 +342,7 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::G
   const float sigma_eff = std::max(seed.sigma, 0.02f * std::abs(seed.level) + 0.5f);
   auto finish_error = [&](std::string why) {
     result.error = std::move(why);
-    stats.elapsed_ms =
-        std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+    stats.elapsed_ms = ms_since(t0);
     return result;
   };
   // A hypoechoic target: most rays meet a clear rise to a tissue level well above the seed's.
@@ -547,10 +552,6 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::G
     return false;
   };
 
-  using Clock = std::chrono::steady_clock;
-  auto ms_since = [](Clock::time_point t) {
-    return std::chrono::duration<double, std::milli>(Clock::now() - t).count();
-  };
   int it = 0;
   bool all_stopped = false;
   int fewest_moving = std::numeric_limits<int>::max();
@@ -710,8 +711,7 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::G
     ++stats.stop_counts[static_cast<std::size_t>(r)];
   }
   result.converged = all_stopped || stats.stalled;
-  stats.elapsed_ms =
-      std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+  stats.elapsed_ms = ms_since(t0);
   return result;
 }
 
@@ -719,7 +719,7 @@ BalloonResult reinflate(const volume::Volume& smoothed_in, const volume::Gradien
                         const Mesh& surface, const BalloonStats& first_pass,
                         const BalloonOptions& options, const ReinflateOptions& pass,
                         std::stop_token stop) {
-  const auto t0 = std::chrono::steady_clock::now();
+  const auto t0 = Clock::now();
   if (smoothed_in.empty()) throw std::invalid_argument("reinflate: empty volume");
   check_gradient(smoothed_in, gradient, "reinflate");
   if (!(first_pass.tissue_level > first_pass.seed_level))
@@ -862,8 +862,7 @@ BalloonResult reinflate(const volume::Volume& smoothed_in, const volume::Gradien
   result.mesh.triangles = surface.triangles;
   for (const StopReason r : reason) ++stats.stop_counts[static_cast<std::size_t>(r)];
   result.stop = std::move(reason);
-  stats.elapsed_ms =
-      std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+  stats.elapsed_ms = ms_since(t0);
   return result;
 }
 
