@@ -4,6 +4,7 @@
 //
 //   balloon_bench [--size N] [--repeat R] [--threads T] [--seed N] [--max-iterations N]
 //                 [--fraction F] [--max-area A] [--plain-cost] [--dot-rise] [--noise-allowance]
+//                 [--no-snap]
 //                 [phantom ...]
 //
 // Prints per phantom: balloon time (median and fastest of R runs: on a shared machine the fastest
@@ -57,6 +58,7 @@ int run(int argc, char** argv) {
   // The library's defaults unless a flag says otherwise: the bench measures what the daemon runs.
   bool noise_allowance = segment::BalloonOptions{}.noise_allowance, relative = true;
   bool per_axis = segment::BalloonOptions{}.rise_per_axis;
+  bool snap = segment::BalloonOptions{}.snap_to_wall;
   float fraction = segment::BalloonOptions{}.tau_cost_fraction;
   float max_area = segment::BalloonOptions{}.max_area_fraction;
   std::vector<std::string> names;
@@ -71,6 +73,7 @@ int run(int argc, char** argv) {
     else if (a == "--no-noise-allowance") noise_allowance = false;
     else if (a == "--plain-cost") relative = false;
     else if (a == "--dot-rise") per_axis = false;
+    else if (a == "--no-snap") snap = false;
     else if (a == "--max-area" && i + 1 < argc) max_area = static_cast<float>(std::atof(argv[++i]));
     else if (a == "--fraction" && i + 1 < argc) fraction = static_cast<float>(std::atof(argv[++i]));
     else if (a.rfind("--", 0) == 0) {
@@ -90,7 +93,7 @@ int run(int argc, char** argv) {
     segment::BalloonResult r;
     for (int k = 0; k < repeat; ++k) {
       const auto t0 = std::chrono::steady_clock::now();
-      r = segment::inflate_balloon(smoothed, gradient, ph.seed_mm, {.relative_cost = relative, .tau_cost_fraction = fraction, .rise_per_axis = per_axis, .noise_allowance = noise_allowance, .max_iterations = max_iterations, .max_area_fraction = max_area, .threads = threads});
+      r = segment::inflate_balloon(smoothed, gradient, ph.seed_mm, {.relative_cost = relative, .tau_cost_fraction = fraction, .rise_per_axis = per_axis, .noise_allowance = noise_allowance, .snap_to_wall = snap, .max_iterations = max_iterations, .max_area_fraction = max_area, .threads = threads});
       ms.push_back(std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count());
     }
     std::sort(ms.begin(), ms.end());

@@ -259,6 +259,10 @@ std::optional<std::string> load_config_text(const std::string& text, const std::
     b.number("cost_window_vox", o.cost_window_vox, 0, 1e4);
     b.boolean("rise_per_axis", o.rise_per_axis);
     b.boolean("noise_allowance", o.noise_allowance);
+    b.boolean("snap_to_wall", o.snap_to_wall);
+    b.number("snap_back_vox", o.snap_back_vox, 0, 8);
+    b.number("snap_ahead_vox", o.snap_ahead_vox, 0, 8);
+    b.number("snap_min_slope", o.snap_min_slope, 0, 10);
     b.number("tau_curv", o.tau_curv, 0, 2);
     b.number("self_intersection_cos", o.self_intersection_cos, -1, 1);
     b.number("target_edge_vox", o.target_edge_vox, 0.25, 20);
@@ -357,6 +361,11 @@ std::string to_toml(const RunConfig& c) {
     << "cost_window_vox = " << toml_float(b.cost_window_vox) << "  # 0: the paper's plain sum\n"
     << "rise_per_axis = " << (b.rise_per_axis ? "true" : "false") << "  # false: the paper's dot product\n"
     << "noise_allowance = " << (b.noise_allowance ? "true" : "false") << "\n"
+    << "snap_to_wall = " << (b.snap_to_wall ? "true" : "false")
+    << "  # a stopped vertex ends on the slope's peak along its normal\n"
+    << "snap_back_vox = " << toml_float(b.snap_back_vox) << "\n"
+    << "snap_ahead_vox = " << toml_float(b.snap_ahead_vox) << "\n"
+    << "snap_min_slope = " << toml_float(b.snap_min_slope) << "  # of the contrast per voxel\n"
     << "tau_curv = " << toml_float(b.tau_curv) << "\n"
     << "self_intersection_cos = " << toml_float(b.self_intersection_cos) << "\n"
     << "target_edge_vox = " << toml_float(b.target_edge_vox) << "\n"

@@ -239,6 +239,58 @@ struct CostRule {
   }
 };
 
+// Where a vertex that the boundary cost stopped ends (BalloonOptions::snap_to_wall): the peak of
+// the image's slope along its normal n nearest to where it stopped, within [-back, +ahead], on a
+// quarter-voxel lattice refined by a parabola through the peak and its two neighbours. For a
+// smoothed step edge the peak is the wall's mid level whatever speckle the vertex's Ψ_cost
+// collected on the way. No peak inside the window (the slope still rising at its end, or falling
+// from its start) or one below min_slope: there is no wall to snap to, the vertex stays.
+struct WallSnap {
+  bool on = false;
+  float back_mm = 0.0f, ahead_mm = 0.0f, step_mm = 0.0f;
+  float min_slope_per_mm = 0.0f;  // grey levels per mm
+  Vec3f box_lo, box_hi;           // the volume's usable box (no data beyond)
+
+  static constexpr int kMaxSamples = 4 * 8 + 1;  // back + ahead <= 8 voxels (check_options)
+
+  // `ahead_limit_mm` shortens the window ahead (reinflate's move bound).
+  Vec3f apply(const ImageSampler& sampler, const Vec3f& p, const Vec3f& n,
+              float ahead_limit_mm = std::numeric_limits<float>::max()) const {
+    if (!on) return p;
+    const int lo = -static_cast<int>(std::lround(back_mm / step_mm));
+    const int hi = static_cast<int>(std::floor(std::min(ahead_mm, ahead_limit_mm) / step_mm + 1e-3f));
+    std::array<float, kMaxSamples> slope;
+    for (int k = lo; k <= hi; ++k) slope[k - lo] = sampler.gradient(p + (static_cast<float>(k) * step_mm) * n).dot(n);
+    // The peak nearest to the stop: a wall's slope can be lower than a speckle blob's in the
+    // tissue beyond it, and the wall Ψ_cost met is the near one.
+    int best = lo;  // none
+    for (int k = lo + 1; k < hi; ++k) {
+      const float here = slope[k - lo];
+      if (here < min_slope_per_mm || here < slope[k - 1 - lo] || here < slope[k + 1 - lo]) continue;
+      if (best == lo || std::abs(k) < std::abs(best)) best = k;
+    }
+    if (best == lo) return p;
+    const float before = slope[best - 1 - lo], peak = slope[best - lo], after = slope[best + 1 - lo];
+    const float curvature = before - 2.0f * peak + after;  // < 0 at a strict peak
+    const float offset = curvature < 0.0f ? std::clamp(0.5f * (before - after) / curvature, -0.5f, 0.5f) : 0.0f;
+    const Vec3f q = p + ((static_cast<float>(best) + offset) * step_mm) * n;
+    return q.cwiseMax(box_lo).cwiseMin(box_hi);
+  }
+};
+
+WallSnap wall_snap(const BalloonOptions& o, float vox_mm, float contrast, const Vec3f& box_lo,
+                   const Vec3f& box_hi) {
+  WallSnap s;
+  s.on = o.snap_to_wall && contrast > 0.0f;
+  s.back_mm = o.snap_back_vox * vox_mm;
+  s.ahead_mm = o.snap_ahead_vox * vox_mm;
+  s.step_mm = 0.25f * vox_mm;
+  s.min_slope_per_mm = o.snap_min_slope * contrast / vox_mm;
+  s.box_lo = box_lo;
+  s.box_hi = box_hi;
+  return s;
+}
+
 void check_gradient(const volume::Volume& smoothed, const volume::Gradient& gradient,
                     const char* who) {
   for (const volume::Volume* g : {&gradient.gx, &gradient.gy, &gradient.gz})
@@ -282,6 +334,9 @@ void check_options(const BalloonOptions& o, float voxel_mm) {
   if (!(o.climb_backstop_fraction > 0.0f && o.climb_backstop_fraction <= 1.0f))
     fail("climb_backstop_fraction must be in (0, 1]");
   if (!(o.tau_curv > 0.0f)) fail("tau_curv must be > 0");
+  if (!(o.snap_back_vox >= 0.0f) || !(o.snap_ahead_vox >= 0.0f) || !(o.snap_back_vox + o.snap_ahead_vox <= 8.0f))
+    fail("snap_back_vox and snap_ahead_vox must be >= 0 with a sum <= 8");
+  if (!(o.snap_min_slope >= 0.0f)) fail("snap_min_slope must be >= 0");
   if (!(o.cost_window_vox >= 0.0f)) fail("cost_window_vox must be >= 0 (0 = plain sum)");
   if (!(o.target_edge_vox > 0.0f)) fail("target_edge_vox must be > 0");
   if (o.remesh_every_iterations < 1) fail("remesh_every_iterations must be >= 1");
@@ -552,6 +607,7 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::G
     return false;
   };
 
+  const WallSnap snap = wall_snap(options, vox_mm, contrast, box_lo, box_hi);
   int it = 0;
   bool all_stopped = false;
   int fewest_moving = std::numeric_limits<int>::max();
@@ -609,11 +665,11 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::G
         }
         bool stopped = false;
         const float t = cost.advance(sampler, p, d, a.cost[v], a.floor_level[v], a.path[v], stopped);
-        a.next_pos[v] = p + t * d;
+        a.next_pos[v] = stopped ? snap.apply(sampler, p + t * d, n) : p + t * d;
         moved[v] = kMoved;
-        // The voxel it ends in: the target's unless it stopped inside the step.
+        // The voxel it ends in: the target's unless it stopped (inside the step, or snapped).
         Vec3i ijk = target_ijk;
-        const bool in_volume = t == 1.0f ? target_in_volume : marks.voxel(a.next_pos[v], ijk);
+        const bool in_volume = !stopped ? target_in_volume : marks.voxel(a.next_pos[v], ijk);
         const std::int64_t voxel =
             in_volume ? static_cast<std::int64_t>(smoothed->linear_index(ijk.x(), ijk.y(), ijk.z())) : -1;
         if (voxel != a.marked_voxel[v]) {
@@ -811,6 +867,7 @@ BalloonResult reinflate(const volume::Volume& smoothed_in, const volume::Gradien
   const float mu_mm = options.inflation_vox * vox_mm, max_move_mm = pass.max_move_vox * vox_mm;
   const Vec3f box_lo = smoothed.min_mm() + Vec3f::Constant(0.5f * vox_mm);
   const Vec3f box_hi = smoothed.max_mm() - Vec3f::Constant(0.5f * vox_mm);
+  const WallSnap snap = wall_snap(options, vox_mm, first_pass.tissue_level - first_pass.seed_level, box_lo, box_hi);
   // Serial, over the vertices still moving: most of the surface is on the wall from the start.
   auto face_normal = [&](std::uint32_t f) {
     const auto& t = surface.triangles[f];
@@ -846,7 +903,8 @@ BalloonResult reinflate(const volume::Volume& smoothed_in, const volume::Gradien
       }
       bool stopped = false;
       const float t = cost.advance(sampler, p, d, cost_of[v], floor_of[v], path_of[v], stopped);
-      next_pos[v] = p + t * d;
+      // (Snapped no further ahead than the move bound allows.)
+      next_pos[v] = stopped ? snap.apply(sampler, p + t * d, n, std::max(0.0f, max_move_mm - path_of[v])) : p + t * d;
       if (stopped) reason[v] = StopReason::Boundary;
       else if (path_of[v] >= max_move_mm) reason[v] = StopReason::IterationLimit;  // moved its most
       else active[still++] = v;

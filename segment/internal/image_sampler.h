@@ -138,8 +138,9 @@ struct CostScale {
 };
 
 struct SeedRegion {
-  float level = 0.0f;         // mean smoothed intensity in a small ball around the seed
-  float sigma = 0.0f;         // its standard deviation
+  float level = 0.0f;         // mean smoothed intensity of the target: the rays' samples well
+                              // before their wall (the ball's mean if they have too few)
+  float sigma = 0.0f;         // standard deviation in the ball around the seed
   float tissue_level = 0.0f;  // median over rays of the level just beyond the first rise
   int rays = 0;
   int rays_hit = 0;           // rays that found a sustained rise to a brighter level

@@ -112,19 +112,19 @@ TEST(Balloon, SettlesOnTheSphereWallWithinOneVoxel) {
   centre /= static_cast<float>(n_in);
   const float voxel_volume = p.phantom.truth.spacing_mm().prod();
   const float radius_mm = std::cbrt(3.0f * n_in * voxel_volume / (4.0f * static_cast<float>(M_PI)));
-  // Spec: every vertex within one voxel of the wall. Measured over speckle seeds 1-11 at 64³: 98.9
-  // to 100 % of the vertices are, and every vertex within 1.21 voxels (the paper's dot-product
-  // rise: 1.33). The spec holds whole for 4 of the 11 seeds (5 with the dot product); this seed's
-  // worst vertex is 1.003 voxels out. So asserted: 99 % within one voxel, all within 1.25.
-  float worst_vox = 0.0f;
-  int within_one_voxel = 0;
+  // Spec: every vertex within one voxel of the wall. Over speckle seeds 1-11 at 64³ it holds for
+  // 10 (the eleventh has one vertex at 1.07, where the speckle moved the image's own edge out);
+  // this seed's worst vertex is 0.65 voxel from the wall. No side may dominate: the stop rule
+  // once left the balloon 0.3 voxel inside on average (snap_to_wall).
+  float worst_vox = 0.0f, signed_sum_vox = 0.0f;
   for (const auto& v : r.mesh.vertices) {
-    const float err_vox = std::abs((v - centre).norm() - radius_mm) / p.vox_mm;
-    worst_vox = std::max(worst_vox, err_vox);
-    if (err_vox <= 1.0f) ++within_one_voxel;
+    const float err_vox = ((v - centre).norm() - radius_mm) / p.vox_mm;
+    worst_vox = std::max(worst_vox, std::abs(err_vox));
+    signed_sum_vox += err_vox;
   }
-  EXPECT_GE(within_one_voxel, 0.99 * static_cast<double>(r.mesh.vertices.size()));
-  EXPECT_LE(worst_vox, 1.25f) << "every vertex within 1.25 voxels of the wall";
+  EXPECT_LE(worst_vox, 1.0f) << "every vertex within one voxel of the wall";
+  EXPECT_LT(std::abs(signed_sum_vox / static_cast<float>(r.mesh.vertices.size())), 0.2f)
+      << "mean signed error, voxels";
 
   const int n = static_cast<int>(r.mesh.vertices.size());
   EXPECT_GE(count(r, StopReason::Boundary), 0.9 * n) << "nearly all stopped by the boundary cost";
@@ -200,10 +200,11 @@ TEST(Balloon, CystNeedleWrapsAroundTheNeedleWithoutLeaking) {
     if (v.z() > centre.z() + 0.2f * (p.phantom.image.max_mm().z() - centre.z())) ++checked_below_needle;
   // Spec: within one voxel of the cyst everywhere, i.e. within 1.5 voxels of the staircase
   // samples. Measured over speckle seeds 1-6 at 64³, 80³ and 96³ (deterministic: the same
-  // vertices on any thread count), with the rise summed per axis (BalloonOptions::rise_per_axis):
-  // the spec holds in 16 of the 18 cases; the other two have their worst vertex 1.53 and 2.17
-  // voxels out (96³). With the paper's dot product it held in none at 80³ (worst 1.9-2.7), and
-  // the worst case was 5.6 voxels out. At 80³ this seed's worst is 1.07, so asserted: the spec.
+  // vertices on any thread count), with the rise summed per axis (BalloonOptions::rise_per_axis)
+  // and the stops snapped to the wall (snap_to_wall): the spec holds in 17 of the 18 cases; the
+  // other has its worst vertex 1.66 voxels out (96³, seed 5). With the paper's dot product it held
+  // in none at 80³ (worst 1.9-2.7), and the worst case was 5.6 voxels out. (At 128³ it holds in 1
+  // of 6: worst 1.24-2.99.) At 80³ this seed's worst is 0.88, so asserted: the spec.
   EXPECT_EQ(outside_far, 0) << "worst " << worst_vox << " voxels outside the cyst";
   EXPECT_LE(worst_vox, 1.5f);
   EXPECT_GT(checked_below_needle, 50) << "the balloon reached the shadowed deep wall";
