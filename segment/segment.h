@@ -100,9 +100,11 @@ struct BalloonOptions {
   float snap_back_vox = 1.0f;     // the window behind the stop (vertices that over-shot)...
   float snap_ahead_vox = 1.5f;    // ...and ahead of it: speckle stops vertices early more often
                                   // and further than late; back + ahead <= 8
-  float snap_min_slope = 0.08f;   // the peak's least slope, in (tissue − seed level) per voxel:
-                                  // a smoothed step of that contrast peaks at ~0.36, in a
-                                  // needle's shadow (x 0.35) at ~0.13
+  float snap_min_slope = 0.25f;   // the peak's least relative slope <∇I, n>/I, per voxel (I
+                                  // floored at 10 % of the tissue level): speckle inside a target
+                                  // stays below (99 % below 0.16, highest 0.22 in 64³-128³
+                                  // phantoms), the phantoms' walls peak at ~0.38, in a needle's
+                                  // shadow too (it scales slope and level alike)
   float tau_curv = 1.2f;          // τ_curv: mean over P's edges of H(PQ)/|PQ| (dimensionless;
                                   // = |n₁−n₂|·sin∠, 0 flat, 2 folded back); stop above
   float self_intersection_cos = -0.5f;  // a marked voxel is "the other side" if the normal of

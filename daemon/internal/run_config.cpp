@@ -365,7 +365,7 @@ std::string to_toml(const RunConfig& c) {
     << "  # a stopped vertex ends on the slope's peak along its normal\n"
     << "snap_back_vox = " << toml_float(b.snap_back_vox) << "\n"
     << "snap_ahead_vox = " << toml_float(b.snap_ahead_vox) << "\n"
-    << "snap_min_slope = " << toml_float(b.snap_min_slope) << "  # of the contrast per voxel\n"
+    << "snap_min_slope = " << toml_float(b.snap_min_slope) << "  # least <grad I, n> / I per voxel\n"
     << "tau_curv = " << toml_float(b.tau_curv) << "\n"
     << "self_intersection_cos = " << toml_float(b.self_intersection_cos) << "\n"
     << "target_edge_vox = " << toml_float(b.target_edge_vox) << "\n"

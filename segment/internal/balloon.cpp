@@ -244,11 +244,12 @@ struct CostRule {
 // quarter-voxel lattice refined by a parabola through the peak and its two neighbours. For a
 // smoothed step edge the peak is the wall's mid level whatever speckle the vertex's Ψ_cost
 // collected on the way. No peak inside the window (the slope still rising at its end, or falling
-// from its start) or one below min_slope: there is no wall to snap to, the vertex stays.
+// from its start) or none steep enough: there is no wall to snap to, the vertex stays.
 struct WallSnap {
   bool on = false;
   float back_mm = 0.0f, ahead_mm = 0.0f, step_mm = 0.0f;
-  float min_slope_per_mm = 0.0f;  // grey levels per mm
+  float min_relative_slope_per_mm = 0.0f;  // <∇I, n> / I, per mm
+  float level_floor = 1.0f;                // I floored at this (a black target)
   Vec3f box_lo, box_hi;           // the volume's usable box (no data beyond)
 
   static constexpr int kMaxSamples = 4 * 8 + 1;  // back + ahead <= 8 voxels (check_options)
@@ -260,13 +261,20 @@ struct WallSnap {
     const int lo = -static_cast<int>(std::lround(back_mm / step_mm));
     const int hi = static_cast<int>(std::floor(std::min(ahead_mm, ahead_limit_mm) / step_mm + 1e-3f));
     std::array<float, kMaxSamples> slope;
-    for (int k = lo; k <= hi; ++k) slope[k - lo] = sampler.gradient(p + (static_cast<float>(k) * step_mm) * n).dot(n);
+    std::array<bool, kMaxSamples> steep;
+    for (int k = lo; k <= hi; ++k) {
+      float value;
+      Vec3f grad;
+      sampler.value_and_gradient(p + (static_cast<float>(k) * step_mm) * n, value, grad);
+      slope[k - lo] = grad.dot(n);
+      steep[k - lo] = slope[k - lo] >= min_relative_slope_per_mm * std::max(value, level_floor);
+    }
     // The peak nearest to the stop: a wall's slope can be lower than a speckle blob's in the
     // tissue beyond it, and the wall Ψ_cost met is the near one.
     int best = lo;  // none
     for (int k = lo + 1; k < hi; ++k) {
       const float here = slope[k - lo];
-      if (here < min_slope_per_mm || here < slope[k - 1 - lo] || here < slope[k + 1 - lo]) continue;
+      if (!steep[k - lo] || here < slope[k - 1 - lo] || here < slope[k + 1 - lo]) continue;
       if (best == lo || std::abs(k) < std::abs(best)) best = k;
     }
     if (best == lo) return p;
@@ -278,14 +286,15 @@ struct WallSnap {
   }
 };
 
-WallSnap wall_snap(const BalloonOptions& o, float vox_mm, float contrast, const Vec3f& box_lo,
-                   const Vec3f& box_hi) {
+WallSnap wall_snap(const BalloonOptions& o, float vox_mm, float contrast, float tissue_level,
+                   const Vec3f& box_lo, const Vec3f& box_hi) {
   WallSnap s;
   s.on = o.snap_to_wall && contrast > 0.0f;
   s.back_mm = o.snap_back_vox * vox_mm;
   s.ahead_mm = o.snap_ahead_vox * vox_mm;
   s.step_mm = 0.25f * vox_mm;
-  s.min_slope_per_mm = o.snap_min_slope * contrast / vox_mm;
+  s.min_relative_slope_per_mm = o.snap_min_slope / vox_mm;
+  s.level_floor = std::max(1e-3f, 0.1f * tissue_level);  // as the relative cost's
   s.box_lo = box_lo;
   s.box_hi = box_hi;
   return s;
@@ -607,7 +616,7 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::G
     return false;
   };
 
-  const WallSnap snap = wall_snap(options, vox_mm, contrast, box_lo, box_hi);
+  const WallSnap snap = wall_snap(options, vox_mm, contrast, seed.tissue_level, box_lo, box_hi);
   int it = 0;
   bool all_stopped = false;
   int fewest_moving = std::numeric_limits<int>::max();
@@ -665,7 +674,16 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::G
         }
         bool stopped = false;
         const float t = cost.advance(sampler, p, d, a.cost[v], a.floor_level[v], a.path[v], stopped);
-        a.next_pos[v] = stopped ? snap.apply(sampler, p + t * d, n) : p + t * d;
+        a.next_pos[v] = p + t * d;
+        if (stopped) {
+          // Snapped, unless that would take it into the other side of the balloon: the snap must
+          // not carry a vertex past the self-intersection test that guards every step.
+          const Vec3f snapped = snap.apply(sampler, a.next_pos[v], n);
+          Vec3i snapped_ijk;
+          if (!marks.voxel(snapped, snapped_ijk) ||
+              !FrontMarks::other_side(reader, snapped_ijk, n, options.self_intersection_cos))
+            a.next_pos[v] = snapped;
+        }
         moved[v] = kMoved;
         // The voxel it ends in: the target's unless it stopped (inside the step, or snapped).
         Vec3i ijk = target_ijk;
@@ -867,7 +885,8 @@ BalloonResult reinflate(const volume::Volume& smoothed_in, const volume::Gradien
   const float mu_mm = options.inflation_vox * vox_mm, max_move_mm = pass.max_move_vox * vox_mm;
   const Vec3f box_lo = smoothed.min_mm() + Vec3f::Constant(0.5f * vox_mm);
   const Vec3f box_hi = smoothed.max_mm() - Vec3f::Constant(0.5f * vox_mm);
-  const WallSnap snap = wall_snap(options, vox_mm, first_pass.tissue_level - first_pass.seed_level, box_lo, box_hi);
+  const WallSnap snap = wall_snap(options, vox_mm, first_pass.tissue_level - first_pass.seed_level,
+                                   first_pass.tissue_level, box_lo, box_hi);
   // Serial, over the vertices still moving: most of the surface is on the wall from the start.
   auto face_normal = [&](std::uint32_t f) {
     const auto& t = surface.triangles[f];
