@@ -3,11 +3,13 @@
 /// @brief The per-volume pipeline every sonomeshd mode runs: smooth, balloon, opening, Kazhdan
 /// reconstruction, marching cubes, topology, labels (DESIGN.md, docs/method.md).
 
+#include <array>
 #include <limits>
 #include <nlohmann/json.hpp>
 #include <optional>
 #include <stop_token>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "reconstruct/reconstruct.h"
@@ -44,6 +46,17 @@ struct PipelineConfig {
 struct StageTimings {
   double smooth_ms = 0, balloon_ms = 0, opening_ms = 0, reconstruct_ms = 0, mesh_ms = 0,
          reinflate_ms = 0, labels_ms = 0, total_ms = 0;
+
+  /// The six stages of the method by the names the report, the journal and /stats use (without
+  /// `labels` and `total`), in pipeline order.
+  std::array<std::pair<const char*, double>, 6> stages() const {
+    return {{{"smooth", smooth_ms},
+             {"balloon", balloon_ms},
+             {"opening", opening_ms},
+             {"reconstruct", reconstruct_ms},
+             {"mesh", mesh_ms},
+             {"reinflate", reinflate_ms}}};
+  }
 };
 
 /// Counts of balloon vertices per stop reason (segment::StopReason, the balloon PLY's codes).

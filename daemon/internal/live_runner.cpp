@@ -509,15 +509,10 @@ void LiveRunner::process_one(QueuedVolume item) {
     fail(std::string("pipeline: ") + e.what(), std::move(line));
     return;
   }
-  const nlohmann::json timings = {{"queue_wait", queue_wait_ms},
-                                  {"smooth", result.timings.smooth_ms},
-                                  {"balloon", result.timings.balloon_ms},
-                                  {"opening", result.timings.opening_ms},
-                                  {"reconstruct", result.timings.reconstruct_ms},
-                                  {"mesh", result.timings.mesh_ms},
-                                  {"reinflate", result.timings.reinflate_ms},
-                                  {"total", result.timings.total_ms}};
-  line["timings_ms"] = timings;
+  nlohmann::json& timings = line["timings_ms"];
+  timings["queue_wait"] = queue_wait_ms;
+  for (const auto& [stage, ms] : result.timings.stages()) timings[stage] = ms;
+  timings["total"] = result.timings.total_ms;
   if (!result.ok) {
     fail(abort_.stop_requested() ? "shutdown: aborted by a second signal" : result.error,
          std::move(line));
@@ -595,15 +590,7 @@ void LiveRunner::write_one(WriteJob& job) {
   stats_.count(JournalStatus::Processed);
   stats_.add_latency(latency_ms);
   stats_.set_last_processed(job.sequence, genus);
-  for (const auto& [stage, ms] :
-       {std::pair<const char*, double>{"smooth", job.timings.smooth_ms},
-        {"balloon", job.timings.balloon_ms},
-        {"opening", job.timings.opening_ms},
-        {"reconstruct", job.timings.reconstruct_ms},
-        {"mesh", job.timings.mesh_ms},
-        {"reinflate", job.timings.reinflate_ms}}) {
-    stats_.add_stage_time(stage, ms);
-  }
+  for (const auto& [stage, ms] : job.timings.stages()) stats_.add_stage_time(stage, ms);
   spdlog::info("sequence {} processed: genus {}, {:.0f} ms after it arrived", job.sequence, genus,
                latency_ms);
   {

@@ -28,11 +28,10 @@ nlohmann::json report_json(const PipelineResult& result, const std::string& inpu
   report["ok"] = result.ok;
   if (!result.ok) report["error"] = result.error;
   const StageTimings& t = result.timings;
-  report["timings_ms"] = {{"smooth", t.smooth_ms},       {"balloon", t.balloon_ms},
-                          {"opening", t.opening_ms},     {"reconstruct", t.reconstruct_ms},
-                          {"mesh", t.mesh_ms},           {"reinflate", t.reinflate_ms},
-                          {"labels", t.labels_ms},
-                          {"total", t.total_ms}};
+  nlohmann::json& timings = report["timings_ms"];
+  for (const auto& [stage, ms] : t.stages()) timings[stage] = ms;
+  timings["labels"] = t.labels_ms;
+  timings["total"] = t.total_ms;
   const StopCounts& s = result.stop_counts;
   report["balloon"] = {{"iterations", result.balloon_iterations},
                        {"converged", result.balloon_converged},
