@@ -549,8 +549,10 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::G
   };
 
   // Marks the surface samples of every vertex that entered a new voxel: its own voxel and the
-  // midpoints of its edges. Edges are at most 4/3 L <= 2 voxels long, so the samples lie at most a
-  // voxel apart and the front leaves a solid band of marked voxels. A vertex that moved within its
+  // midpoints of its edges. Edges are at most 4/3 L long (2.33 voxels at the default L), so the
+  // samples lie at most 1.17 voxels apart: one sweep can miss a voxel between two, but the front
+  // marks again in every voxel it enters, and the band it leaves is close to solid (128³ sphere:
+  // 137 500 voxels swept at L = 1.75 voxels, 139 700 at L = 1.5). A vertex that moved within its
   // voxel marks nothing: at 0.3 voxel per iteration that is most iterations, and every sample was
   // looked up ~13 times per voxel it marked. An edge midpoint that crossed into a new voxel while
   // both ends stayed in theirs is marked when one end crosses, at most a voxel of travel later.
