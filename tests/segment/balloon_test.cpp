@@ -261,6 +261,33 @@ TEST(Balloon, RejectsAnInflationStepThatCouldJumpAWall) {
                std::invalid_argument);
 }
 
+TEST(Balloon, RejectsASnapWindowBeyondEightVoxels) {
+  const Prepared p = prepare("sphere", 48);
+  EXPECT_THROW(segment::inflate_balloon(p.smoothed, p.gradient, p.phantom.seed_mm,
+                                        {.snap_back_vox = 4.0f, .snap_ahead_vox = 4.5f}),
+               std::invalid_argument);
+}
+
+TEST(Balloon, SnapsStoppedVerticesOntoTheWallInsteadOfShortOfIt) {
+  // Where Ψ_cost crosses τ_cost depends on the speckle it collected on the way: without the snap
+  // the balloon rests inside the wall (64³, 11 speckle seeds: 0.33 voxel on average; this seed
+  // 0.35, snapped 0.09).
+  const Prepared p = prepare("sphere", 64);
+  const Vec3f centre = 0.5f * (p.phantom.image.min_mm() + p.phantom.image.max_mm());
+  auto mean_radius_mm = [&](const segment::BalloonResult& r) {
+    double sum = 0.0;
+    for (const auto& v : r.mesh.vertices) sum += (v - centre).norm();
+    return static_cast<float>(sum / static_cast<double>(r.mesh.vertices.size()));
+  };
+  const auto snapped = segment::inflate_balloon(p.smoothed, p.gradient, p.phantom.seed_mm);
+  const auto unsnapped = segment::inflate_balloon(p.smoothed, p.gradient, p.phantom.seed_mm, {.snap_to_wall = false});
+  ASSERT_EQ(snapped.error, "");
+  ASSERT_EQ(unsnapped.error, "");
+  EXPECT_EQ(segment::euler_characteristic(snapped.mesh), 2);
+  EXPECT_GT(mean_radius_mm(snapped) - mean_radius_mm(unsnapped), 0.1f * p.vox_mm)
+      << "the snap moves the stopped balloon outwards, onto the wall";
+}
+
 TEST(Balloon, SerialAndParallelRunsAreIdentical) {
   // The cyst with its needle: the fronts meet behind the needle, so the self-intersection stops
   // depend on which front marked A_t first. Marks are applied in vertex order after each
