@@ -244,13 +244,16 @@ struct CostRule {
 // quarter-voxel lattice refined by a parabola through the peak and its two neighbours. For a
 // smoothed step edge the peak is the wall's mid level whatever speckle the vertex's Ψ_cost
 // collected on the way. No peak inside the window (the slope still rising at its end, or falling
-// from its start) or none steep enough: there is no wall to snap to, the vertex stays.
+// from its start) or none steep enough: there is no wall to snap to, the vertex stays. (On a
+// curved wall the blur moves the peak a little towards the centre of curvature, about σ²/2r: the
+// 64³ double torus's thin tubes come out with 0.94 of the true volume, where the unsnapped second
+// pass over-shot to 1.02.)
 struct WallSnap {
   bool on = false;
   float back_mm = 0.0f, ahead_mm = 0.0f, step_mm = 0.0f;
   float min_relative_slope_per_mm = 0.0f;  // <∇I, n> / I, per mm
   float level_floor = 1.0f;                // I floored at this (a black target)
-  Vec3f box_lo, box_hi;           // the volume's usable box (no data beyond)
+  Vec3f box_lo, box_hi;                    // the volume's usable box (no data beyond)
 
   static constexpr int kMaxSamples = 4 * 8 + 1;  // back + ahead <= 8 voxels (check_options)
 
