@@ -251,52 +251,33 @@ Face BalloonMesh::add_triangle(Vertex a, Vertex b, Vertex c) {
 
 // OpenMesh's TriConnectivity::split for an interior edge: which elements are new and which
 // outgoing/face halfedges change follow it exactly.
-void BalloonMesh::split(Edge e, Vertex v) {
-  const Halfedge h0 = halfedge(e, 0), o0 = halfedge(e, 1);
-  const Vertex v2 = to_vertex(o0);
-  const Halfedge e1 = new_edge(v, v2), t1 = opposite(e1);
-  const Face f0 = face(h0), f3 = face(o0);
-  vertex_halfedge_[v.idx] = h0;
-  halfedge_vertex_[o0.idx] = v;
+void BalloonMesh::set_triangle(Face f, Halfedge a, Halfedge b, Halfedge c) {
+  face_halfedge_[f.idx] = a;
+  for (const Halfedge h : {a, b, c}) halfedge_face_[h.idx] = f;
+  halfedge_next_[a.idx] = b;
+  halfedge_next_[b.idx] = c;
+  halfedge_next_[c.idx] = a;
+}
 
-  const Halfedge h1 = next(h0), h2 = next(h1);
-  const Vertex v1 = to_vertex(h1);
+void BalloonMesh::split(Edge e, Vertex v) {
+  // Halfedge h0 of e runs v2 -> v0 in face f0 (v2, v0, v1), its opposite o0 in f3 (v0, v2, v3).
+  // e keeps the half towards v0 (h0 then runs v -> v0); new edges join v to v2, v1 and v3.
+  const Halfedge h0 = halfedge(e, 0), o0 = halfedge(e, 1);
+  const Halfedge h1 = next(h0), h2 = next(h1), o1 = next(o0), o2 = next(o1);
+  const Vertex v1 = to_vertex(h1), v2 = to_vertex(o0), v3 = to_vertex(o1);  // before o0 points at v
+  const Face f0 = face(h0), f3 = face(o0);
+  // Created in OpenMesh's order, so the new indices (and with them the results) are its.
+  const Halfedge e1 = new_edge(v, v2), t1 = opposite(e1);
   const Halfedge e0 = new_edge(v, v1), t0 = opposite(e0);
   const Face f1 = new_face();
-  face_halfedge_[f0.idx] = h0;
-  face_halfedge_[f1.idx] = h2;
-  halfedge_face_[h1.idx] = f0;
-  halfedge_face_[t0.idx] = f0;
-  halfedge_face_[h0.idx] = f0;
-  halfedge_face_[h2.idx] = f1;
-  halfedge_face_[t1.idx] = f1;
-  halfedge_face_[e0.idx] = f1;
-  halfedge_next_[h0.idx] = h1;
-  halfedge_next_[h1.idx] = t0;
-  halfedge_next_[t0.idx] = h0;
-  halfedge_next_[e0.idx] = h2;
-  halfedge_next_[h2.idx] = t1;
-  halfedge_next_[t1.idx] = e0;
-
-  const Halfedge o1 = next(o0), o2 = next(o1);
-  const Vertex v3 = to_vertex(o1);
   const Halfedge e2 = new_edge(v, v3), t2 = opposite(e2);
   const Face f2 = new_face();
-  face_halfedge_[f2.idx] = o1;
-  face_halfedge_[f3.idx] = o0;
-  halfedge_face_[o1.idx] = f2;
-  halfedge_face_[t2.idx] = f2;
-  halfedge_face_[e1.idx] = f2;
-  halfedge_face_[o2.idx] = f3;
-  halfedge_face_[o0.idx] = f3;
-  halfedge_face_[e2.idx] = f3;
-  halfedge_next_[e1.idx] = o1;
-  halfedge_next_[o1.idx] = t2;
-  halfedge_next_[t2.idx] = e1;
-  halfedge_next_[o0.idx] = e2;
-  halfedge_next_[e2.idx] = o2;
-  halfedge_next_[o2.idx] = o0;
-
+  vertex_halfedge_[v.idx] = h0;
+  halfedge_vertex_[o0.idx] = v;
+  set_triangle(f0, h0, h1, t0);  // (v, v0, v1)
+  set_triangle(f1, h2, t1, e0);  // (v1, v2, v), new
+  set_triangle(f2, o1, t2, e1);  // (v2, v3, v), new
+  set_triangle(f3, o0, e2, o2);  // (v0, v, v3)
   if (halfedge(v2) == h0) vertex_halfedge_[v2.idx] = t1;
 }
 

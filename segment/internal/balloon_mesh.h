@@ -132,6 +132,8 @@ class BalloonMesh {
   Halfedge find_halfedge(Vertex from, Vertex to) const;
   Halfedge boundary_prev(Halfedge h) const;
   void adjust_outgoing_halfedge(Vertex v);
+  // Face f is the triangle a -> b -> c (halfedges), held by a.
+  void set_triangle(Face f, Halfedge a, Halfedge b, Halfedge c);
 
   std::vector<Vec3f> points_mm_;
   std::vector<VertexState> states_;
