@@ -239,6 +239,16 @@ struct CostRule {
   }
 };
 
+// The relative scale's floor: 10 % of the tissue level (segment.h, relative_cost).
+internal::CostScale cost_scale(bool relative, float tissue_level) {
+  internal::CostScale scale;
+  if (relative) {
+    scale.relative = true;
+    scale.floor = std::max(1e-3f, 0.1f * tissue_level);
+  }
+  return scale;
+}
+
 // Where a vertex that the boundary cost stopped ends (BalloonOptions::snap_to_wall): the peak of
 // the image's slope along its normal n nearest to where it stopped, within [-back, +ahead], on a
 // quarter-voxel lattice refined by a parabola through the peak and its two neighbours. For a
@@ -289,15 +299,15 @@ struct WallSnap {
   }
 };
 
-WallSnap wall_snap(const BalloonOptions& o, float vox_mm, float contrast, float tissue_level,
-                   const Vec3f& box_lo, const Vec3f& box_hi) {
+WallSnap wall_snap(const BalloonOptions& o, float vox_mm, float tissue_level, const Vec3f& box_lo,
+                   const Vec3f& box_hi) {
   WallSnap s;
-  s.on = o.snap_to_wall && contrast > 0.0f;
+  s.on = o.snap_to_wall;
   s.back_mm = o.snap_back_vox * vox_mm;
   s.ahead_mm = o.snap_ahead_vox * vox_mm;
   s.step_mm = 0.25f * vox_mm;
   s.min_relative_slope_per_mm = o.snap_min_slope / vox_mm;
-  s.level_floor = std::max(1e-3f, 0.1f * tissue_level);  // as the relative cost's
+  s.level_floor = cost_scale(true, tissue_level).floor;  // the relative cost's
   s.box_lo = box_lo;
   s.box_hi = box_hi;
   return s;
@@ -309,16 +319,6 @@ void check_gradient(const volume::Volume& smoothed, const volume::Gradient& grad
     if (g->dims() != smoothed.dims() || g->type() != volume::VoxelType::Float32)
       throw std::invalid_argument(std::string(who) +
                                   ": gradient must be Float32 on the volume's grid (volume::central_gradient)");
-}
-
-// The relative scale's floor: 10 % of the tissue level (segment.h, relative_cost).
-internal::CostScale cost_scale(bool relative, float tissue_level) {
-  internal::CostScale scale;
-  if (relative) {
-    scale.relative = true;
-    scale.floor = std::max(1e-3f, 0.1f * tissue_level);
-  }
-  return scale;
 }
 
 // The sampler reads Float32 directly: other types (an unsmoothed UInt8 volume) are converted once
@@ -621,7 +621,7 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::G
     return false;
   };
 
-  const WallSnap snap = wall_snap(options, vox_mm, contrast, seed.tissue_level, box_lo, box_hi);
+  const WallSnap snap = wall_snap(options, vox_mm, seed.tissue_level, box_lo, box_hi);
   int it = 0;
   bool all_stopped = false;
   int fewest_moving = std::numeric_limits<int>::max();
@@ -890,8 +890,7 @@ BalloonResult reinflate(const volume::Volume& smoothed_in, const volume::Gradien
   const float mu_mm = options.inflation_vox * vox_mm, max_move_mm = pass.max_move_vox * vox_mm;
   const Vec3f box_lo = smoothed.min_mm() + Vec3f::Constant(0.5f * vox_mm);
   const Vec3f box_hi = smoothed.max_mm() - Vec3f::Constant(0.5f * vox_mm);
-  const WallSnap snap = wall_snap(options, vox_mm, first_pass.tissue_level - first_pass.seed_level,
-                                   first_pass.tissue_level, box_lo, box_hi);
+  const WallSnap snap = wall_snap(options, vox_mm, first_pass.tissue_level, box_lo, box_hi);
   // Serial, over the vertices still moving: most of the surface is on the wall from the start.
   auto face_normal = [&](std::uint32_t f) {
     const auto& t = surface.triangles[f];

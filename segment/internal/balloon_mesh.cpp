@@ -249,8 +249,6 @@ Face BalloonMesh::add_triangle(Vertex a, Vertex b, Vertex c) {
   return f;
 }
 
-// OpenMesh's TriConnectivity::split for an interior edge: which elements are new and which
-// outgoing/face halfedges change follow it exactly.
 void BalloonMesh::set_triangle(Face f, Halfedge a, Halfedge b, Halfedge c) {
   face_halfedge_[f.idx] = a;
   for (const Halfedge h : {a, b, c}) halfedge_face_[h.idx] = f;
@@ -259,6 +257,8 @@ void BalloonMesh::set_triangle(Face f, Halfedge a, Halfedge b, Halfedge c) {
   halfedge_next_[c.idx] = a;
 }
 
+// OpenMesh's TriConnectivity::split for an interior edge: which elements are new and which
+// outgoing/face halfedges change follow it exactly.
 void BalloonMesh::split(Edge e, Vertex v) {
   // Halfedge h0 of e runs v2 -> v0 in face f0 (v2, v0, v1), its opposite o0 in f3 (v0, v2, v3).
   // e keeps the half towards v0 (h0 then runs v -> v0); new edges join v to v2, v1 and v3.
