@@ -20,6 +20,7 @@
 #include <cstdint>
 #include <stdexcept>
 #include <string>
+#include <span>
 #include <thread>
 #include <vector>
 
@@ -58,12 +59,16 @@ class FrontMarks {
 
   // Voxel containing p (voxel centres at integer indices); false outside the volume.
   bool voxel(const Vec3f& p_mm, Vec3i& ijk) const {
-    const Vec3f u = (p_mm - origin_mm_).cwiseProduct(inv_spacing_) + Vec3f::Constant(0.5f);
-    if (!(u.array() >= 0.0f).all()) return false;
+    // Per axis by hand: Eigen's cwise expressions with all() compiled to an out-of-line call
+    // (3 % of the balloon's instructions).
+    const float ux = (p_mm.x() - origin_mm_.x()) * inv_spacing_.x() + 0.5f;
+    const float uy = (p_mm.y() - origin_mm_.y()) * inv_spacing_.y() + 0.5f;
+    const float uz = (p_mm.z() - origin_mm_.z()) * inv_spacing_.z() + 0.5f;
+    if (!(ux >= 0.0f && uy >= 0.0f && uz >= 0.0f)) return false;
     // Truncation is floor here (u >= 0): nearest voxel centre without lround's libm call (3 % of
     // the balloon's time at 128³).
-    ijk = u.cast<int>();
-    return (ijk.array() < dims_.array()).all();
+    ijk = Vec3i(static_cast<int>(ux), static_cast<int>(uy), static_cast<int>(uz));
+    return ijk.x() < dims_.x() && ijk.y() < dims_.y() && ijk.z() < dims_.z();
   }
 
   // True if the voxel at p was swept by a front whose normal opposes n (cosine < cos_limit).
@@ -84,6 +89,32 @@ class FrontMarks {
 };
 
 // ---------------------------------------------------------------------------------------------
+// The balloon's threads. A loop is split into tasks of at least `grain` items, and runs serially
+// below two of them. The grains: 128 for the per-vertex evolution and A_t lookups (1-2 thousand
+// instructions per vertex), 512 for the light loops (face normals, copies). With one grain of
+// 512 for all, the iterations of a torus's or cyst's front of 256-1023 vertices, most of their
+// iterations, ran on one core (128³: balloon 6-9 % slower).
+struct Workers {
+  tbb::task_arena arena;
+  bool serial = false;
+  static constexpr std::size_t kHeavy = 128, kLight = 512;
+
+  explicit Workers(int threads) : arena(threads), serial(threads == 1) {}
+
+  template <typename F>
+  void parallel_for(std::size_t n, std::size_t grain, F&& f) {
+    if (serial || n < 2 * grain) {
+      f(std::size_t{0}, n);
+      return;
+    }
+    arena.execute([&] {
+      tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, grain),
+                        [&](const tbb::blocked_range<std::size_t>& r) { f(r.begin(), r.end()); });
+    });
+  }
+};
+
+// ---------------------------------------------------------------------------------------------
 // Flat working copy of the mesh between two remeshing passes.
 struct Arrays {
   std::vector<Vec3f> pos;
@@ -98,7 +129,8 @@ struct Arrays {
   std::vector<std::array<std::uint32_t, 3>> tri;
   std::vector<Vec3f> face_normal;
   // One-ring: for vertex v, entries ring_begin[v] .. ring_begin[v+1]-1, each an outgoing edge with
-  // its far vertex and the faces on its two sides (for H(PQ) and for equation (2)).
+  // its far vertex and the faces on its two sides (for H(PQ) and for equation (2)). Empty, and
+  // the evolution state above unset, for a vertex that had stopped when they were extracted.
   std::vector<std::uint32_t> ring_begin;
   std::vector<std::uint32_t> ring_vertex;
   std::vector<std::uint32_t> ring_face_left;
@@ -106,8 +138,12 @@ struct Arrays {
 };
 
 // Expects no deleted elements (remesh() collects its garbage), so mesh indices are array indices.
-// Each ring runs clockwise from the vertex's outgoing halfedge, as OpenMesh's did: the sums over
-// it, and with them the results, stay what they were.
+// Only the vertices still moving get their ring and evolution state: every per-vertex loop runs
+// over those (`active`), and reads the others' positions only. Once most of the balloon rests on
+// the wall, a pass costs what its moving front costs (the whole mesh's rings were 8 % of the
+// balloon's instructions at 128³, run after every remeshing pass). Each ring runs clockwise from
+// the vertex's outgoing halfedge, as OpenMesh's did: the sums over it, and with them the results,
+// stay what they were.
 void extract(const BalloonMesh& bm, Arrays& a) {
   assert(!bm.has_garbage());
   const std::size_t nv = bm.n_vertices(), nh = bm.n_halfedges(), nf = bm.n_faces();
@@ -124,22 +160,21 @@ void extract(const BalloonMesh& bm, Arrays& a) {
   a.floor_level.resize(nv);
   a.marked_voxel.resize(nv);
   a.normal.assign(nv, Vec3f::Zero());
+  a.ring_begin.resize(nv + 1);
+  a.ring_vertex.resize(nh);  // room for every ring
+  a.ring_face_left.resize(nh);
+  a.ring_face_right.resize(nh);
   const auto states = bm.states();
+  std::uint32_t r = 0;
   for (std::size_t v = 0; v < nv; ++v) {
-    a.cost[v] = states[v].cost;
+    a.ring_begin[v] = r;
     a.reason[v] = states[v].reason;
+    if (a.reason[v] != StopReason::Moving) continue;  // an empty ring
+    a.cost[v] = states[v].cost;
     a.anchor[v] = states[v].anchor_mm;
     a.path[v] = states[v].path_mm;
     a.floor_level[v] = states[v].floor_level;
     a.marked_voxel[v] = states[v].marked_voxel;
-  }
-  a.ring_begin.resize(nv + 1);
-  a.ring_vertex.resize(nh);
-  a.ring_face_left.resize(nh);
-  a.ring_face_right.resize(nh);
-  std::uint32_t r = 0;
-  for (std::size_t v = 0; v < nv; ++v) {
-    a.ring_begin[v] = r;
     const std::uint32_t start = out[v].idx;
     std::uint32_t h = start;
     do {
@@ -150,7 +185,7 @@ void extract(const BalloonMesh& bm, Arrays& a) {
       h = next[h ^ 1u].idx;  // clockwise to the next outgoing halfedge
     } while (h != start);
   }
-  a.ring_begin[nv] = r;
+  a.ring_begin[nv] = r;  // (the ring arrays keep their size: cut and regrown, they were cleared)
   const auto face_h = bm.face_halfedges();
   a.tri.resize(nf);
   a.face_normal.resize(nf);
@@ -160,10 +195,13 @@ void extract(const BalloonMesh& bm, Arrays& a) {
   }
 }
 
-void write_back(const Arrays& a, BalloonMesh& bm) {
-  std::copy(a.pos.begin(), a.pos.end(), bm.points_mm().begin());
+// Back into the mesh for a remeshing pass: the vertices that were moving when the arrays were
+// extracted, the only ones whose position or state the evolution changes.
+void write_back(const Arrays& a, std::span<const std::uint32_t> window, BalloonMesh& bm) {
+  const auto points = bm.points_mm();
   const auto states = bm.states();
-  for (std::size_t v = 0; v < states.size(); ++v)
+  for (const std::uint32_t v : window) {
+    points[v] = a.pos[v];
     states[v] = {
         .cost = a.cost[v],
         .reason = a.reason[v],
@@ -171,6 +209,7 @@ void write_back(const Arrays& a, BalloonMesh& bm) {
         .path_mm = a.path[v],
         .floor_level = a.floor_level[v],
         .marked_voxel = a.marked_voxel[v]};
+  }
 }
 
 using Clock = std::chrono::steady_clock;
@@ -179,17 +218,6 @@ double ms_since(Clock::time_point t) {
   return std::chrono::duration<double, std::milli>(Clock::now() - t).count();
 }
 
-template <typename F>
-void parallel_for(tbb::task_arena& arena, bool serial, std::size_t n, F&& f) {
-  if (serial || n < 1024) {
-    f(std::size_t{0}, n);
-    return;
-  }
-  arena.execute([&] {
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 512),
-                      [&](const tbb::blocked_range<std::size_t>& r) { f(r.begin(), r.end()); });
-  });
-}
 
 // The increment of Ψ_cost for a step d through a point with gradient g, before the scale's
 // weight: the paper's max(0, <g, d>), or summed per grid axis (BalloonOptions::rise_per_axis).
@@ -482,8 +510,7 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::G
 
   const int threads = options.threads > 0 ? options.threads
                                           : std::max(1, static_cast<int>(std::thread::hardware_concurrency()));
-  tbb::task_arena arena(threads);
-  const bool serial = threads == 1;
+  Workers workers(threads);
 
   FrontMarks marks(*smoothed);
   Arrays a;
@@ -494,11 +521,14 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::G
   // costs what its moving front costs.
   std::vector<std::uint32_t> active;
   // All of them after a remeshing pass (the mesh's indices changed); in between, iterations only
-  // drop the ones that stopped.
+  // drop the ones that stopped. `window` keeps the list as it was then: the vertices write_back
+  // has to copy.
+  std::vector<std::uint32_t> window;
   auto all_active = [&] {
     active.clear();
     for (std::uint32_t v = 0; v < a.pos.size(); ++v)
       if (a.reason[v] == StopReason::Moving) active.push_back(v);
+    window = active;
   };
   auto collect_active = [&] {
     std::erase_if(active, [&](std::uint32_t v) { return a.reason[v] != StopReason::Moving; });
@@ -536,10 +566,10 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::G
         dirty_faces.push_back(f);
       }
     }
-    parallel_for(arena, serial, dirty_faces.size(), [&](std::size_t b, std::size_t e) {
+    workers.parallel_for(dirty_faces.size(), Workers::kLight, [&](std::size_t b, std::size_t e) {
       for (std::size_t i = b; i < e; ++i) face_normal(dirty_faces[i]);
     });
-    parallel_for(arena, serial, active.size(), [&](std::size_t b, std::size_t e) {
+    workers.parallel_for(active.size(), Workers::kLight, [&](std::size_t b, std::size_t e) {
       for (std::size_t i = b; i < e; ++i) {
         const std::uint32_t v = active[i];
         Vec3f n = Vec3f::Zero();  // equation (2): normalised sum of the unit triangle normals
@@ -565,7 +595,7 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::G
   std::vector<Vec3i> pending;
   auto mark_front = [&] {
     pending.resize(a.ring_vertex.size() + a.pos.size());
-    parallel_for(arena, serial, active.size(), [&](std::size_t b, std::size_t e) {
+    workers.parallel_for(active.size(), Workers::kHeavy, [&](std::size_t b, std::size_t e) {
       const volume::FrontGrid::Reader reader(marks.grid());
       for (std::size_t i = b; i < e; ++i) {
         const std::uint32_t v = active[i];
@@ -635,7 +665,7 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::G
     std::atomic<int> moving_count{0};
     const auto t_evolve = Clock::now();
     stats.vertex_iterations += static_cast<std::int64_t>(active.size());
-    parallel_for(arena, serial, active.size(), [&](std::size_t b, std::size_t e) {
+    workers.parallel_for(active.size(), Workers::kHeavy, [&](std::size_t b, std::size_t e) {
       const volume::FrontGrid::Reader reader(marks.grid());
       int local_moving = 0;
       for (std::size_t i = b; i < e; ++i) {
@@ -704,7 +734,7 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::G
       }
       moving_count.fetch_add(local_moving, std::memory_order_relaxed);
     });
-    parallel_for(arena, serial, active.size(), [&](std::size_t b, std::size_t e) {
+    workers.parallel_for(active.size(), Workers::kLight, [&](std::size_t b, std::size_t e) {
       for (std::size_t i = b; i < e; ++i)
         if (moved[active[i]]) a.pos[active[i]] = a.next_pos[active[i]];
     });
@@ -748,7 +778,7 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::G
     }
     if (it % options.remesh_every_iterations == 0 && needs_remesh()) {
       const auto t_remesh = Clock::now();
-      write_back(a, bm);
+      write_back(a, window, bm);
       const auto counts = internal::remesh(bm, limits);
       ++stats.remesh_passes;
       stats.splits += counts.splits;
@@ -772,7 +802,7 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::G
     for (auto& r : a.reason)
       if (r == StopReason::Moving) r = StopReason::IterationLimit;
 
-  write_back(a, bm);
+  write_back(a, window, bm);
   bm.garbage_collection();
   stats.front_voxels = marks.grid().marked_count();
   stats.front_grid_bytes = marks.grid().memory_bytes();
