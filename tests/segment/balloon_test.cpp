@@ -1,6 +1,7 @@
 // The balloon (method.md §1-3) on speckled phantoms from the simulator.
 #include <gtest/gtest.h>
 
+#include <Eigen/Geometry>
 #include <chrono>
 #include <cmath>
 #include <map>
@@ -83,6 +84,20 @@ bool closed_and_consistently_oriented(const segment::Mesh& m) {
   return true;
 }
 
+double area_mm2(const segment::Mesh& m) {
+  double sum = 0.0;
+  for (const auto& t : m.triangles)
+    sum += 0.5 * (m.vertices[t[1]] - m.vertices[t[0]]).cross(m.vertices[t[2]] - m.vertices[t[0]]).norm();
+  return sum;
+}
+
+// Surface area per vertex in units of L² (the target edge length): about 1 for a mesh that
+// remeshing keeps at L. A front folded over itself, or one refined into slivers, has more vertices.
+double area_per_vertex_L2(const segment::Mesh& m, float vox_mm) {
+  const double edge_mm = segment::BalloonOptions{}.target_edge_vox * vox_mm;
+  return area_mm2(m) / static_cast<double>(m.vertices.size()) / (edge_mm * edge_mm);
+}
+
 int count(const segment::BalloonResult& r, StopReason reason) {
   return r.stats.stop_counts[static_cast<std::size_t>(reason)];
 }
@@ -125,6 +140,10 @@ TEST(Balloon, SettlesOnTheSphereWallWithinOneVoxel) {
   EXPECT_LE(worst_vox, 1.0f) << "every vertex within one voxel of the wall";
   EXPECT_LT(std::abs(signed_sum_vox / static_cast<float>(r.mesh.vertices.size())), 0.2f)
       << "mean signed error, voxels";
+  // One layer at the target edge length: the area is the sphere's (1.001-1.006 of 4πr² over seeds
+  // 1-8), at 0.92-0.95 L² per vertex.
+  EXPECT_NEAR(area_mm2(r.mesh) / (4.0 * M_PI * radius_mm * radius_mm), 1.0, 0.03);
+  EXPECT_NEAR(area_per_vertex_L2(r.mesh, p.vox_mm), 1.0, 0.2);
 
   const int n = static_cast<int>(r.mesh.vertices.size());
   EXPECT_GE(count(r, StopReason::Boundary), 0.9 * n) << "nearly all stopped by the boundary cost";
@@ -165,6 +184,18 @@ TEST(Balloon, TorusStaysGenusZeroAndStopsWhereTheFrontsMeet) {
       ++self_on_outer_wall;
   }
   EXPECT_GE(self_stops, 10) << "the fronts meeting across the ring must be detected";
+  // One layer: the balloon's area is the torus's plus the two caps that meet (1.013-1.033 of it
+  // over seeds 1-8, at 0.98-1.01 L² per vertex). Where a front folds into a double layer, as a
+  // wall snap that followed speckle once made it do over 70° of a tube, the genus stays right and
+  // only the area and the vertex count show it.
+  const float half_extent_mm = p.phantom.image.max_mm().x() - centre.x();
+  const double major_mm = 0.42 * half_extent_mm, tube_mm = 0.2 * half_extent_mm;  // sim's torus
+  const double torus_and_caps_mm2 = 4.0 * M_PI * M_PI * major_mm * tube_mm + 2.0 * M_PI * tube_mm * tube_mm;
+  // (A snap without its slope threshold, reaching 3 voxels ahead, gives 1.05-1.08.)
+  const double area_ratio = area_mm2(r.mesh) / torus_and_caps_mm2;
+  EXPECT_GT(area_ratio, 0.97);
+  EXPECT_LT(area_ratio, 1.05);
+  EXPECT_NEAR(area_per_vertex_L2(r.mesh, p.vox_mm), 1.0, 0.2);
   EXPECT_EQ(self_near_seed_side, 0) << "self-intersection stops only where the fronts meet";
   EXPECT_EQ(self_on_outer_wall, 0);
   // Everything else rests on the wall.
