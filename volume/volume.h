@@ -148,29 +148,6 @@ Vec3f sample_gradient_mm(const Gradient& gradient, const Vec3f& p_mm);
 // ---------------------------------------------------------------------------------------------
 // OpenVDB grids (OpenVDB itself stays private to this module).
 
-/// A sparse boolean grid whose index space is the volume's (voxel size = spacing, same origin):
-/// the balloon's occupancy A_t and label grids. Backed by an openvdb::BoolGrid.
-/// get() goes through a cached accessor, so one grid must not be used from several threads at once
-/// (not even for concurrent get()); use one grid per thread.
-class OccupancyGrid {
- public:
-  explicit OccupancyGrid(const Volume& like);
-  ~OccupancyGrid();
-  OccupancyGrid(OccupancyGrid&&) noexcept;
-  OccupancyGrid& operator=(OccupancyGrid&&) noexcept;
-
-  bool get(const Vec3i& ijk) const;
-  void set(const Vec3i& ijk, bool on = true);
-  /// Number of voxels that are on.
-  std::size_t active_count() const;
-  /// Dense uint8 label volume (on = 1) on the grid of `like`.
-  Volume to_labels() const;
-
- private:
-  struct Impl;
-  std::unique_ptr<Impl> impl_;
-};
-
 /// The balloon's occupancy A_t (method.md §2): the voxels its front has swept, each holding the
 /// unit normal (quantised to 1/127) of the front that swept it first. Sparse: an openvdb::Int32Grid
 /// in the volume's index space, so memory follows the swept region, not the volume.

@@ -1,4 +1,4 @@
-// OccupancyGrid and write_vdb.
+// FrontGrid and write_vdb.
 #include <gtest/gtest.h>
 
 #include <atomic>
@@ -12,62 +12,6 @@
 #include "volume/volume.h"
 
 using namespace sonomesh::volume;
-
-TEST(OccupancyGrid, SetGetCountAndLabels) {
-  const Volume like(Vec3i(20, 16, 12), Vec3f(0.5f, 1.0f, 2.0f), Vec3f(1, 2, 3), VoxelType::UInt8);
-  OccupancyGrid grid(like);
-  EXPECT_EQ(grid.active_count(), 0u);
-  EXPECT_FALSE(grid.get(Vec3i(3, 4, 5)));
-  // A 5x4x3 block plus the two extreme corners.
-  for (int k = 2; k < 5; ++k)
-    for (int j = 3; j < 7; ++j)
-      for (int i = 4; i < 9; ++i) grid.set(Vec3i(i, j, k));
-  grid.set(Vec3i(0, 0, 0));
-  grid.set(Vec3i(19, 15, 11));
-  grid.set(Vec3i(4, 3, 2));  // already on: no change
-  EXPECT_EQ(grid.active_count(), 62u);
-  EXPECT_TRUE(grid.get(Vec3i(4, 3, 2)));
-  EXPECT_TRUE(grid.get(Vec3i(19, 15, 11)));
-  EXPECT_FALSE(grid.get(Vec3i(9, 3, 2)));
-  grid.set(Vec3i(0, 0, 0), false);
-  EXPECT_FALSE(grid.get(Vec3i(0, 0, 0)));
-  EXPECT_EQ(grid.active_count(), 61u);
-
-  const Volume labels = grid.to_labels();
-  ASSERT_EQ(labels.type(), VoxelType::UInt8);
-  EXPECT_EQ(labels.dims(), like.dims());
-  EXPECT_EQ(labels.spacing_mm(), like.spacing_mm());
-  EXPECT_EQ(labels.origin_mm(), like.origin_mm());
-  std::size_t on = 0;
-  for (auto v : labels.u8()) on += v;
-  EXPECT_EQ(on, 61u);
-  EXPECT_EQ(labels.value(5, 4, 3), 1.0f);
-  EXPECT_EQ(labels.value(19, 15, 11), 1.0f);
-  EXPECT_EQ(labels.value(0, 0, 0), 0.0f);
-
-  // Moves keep the contents.
-  OccupancyGrid moved(std::move(grid));
-  EXPECT_EQ(moved.active_count(), 61u);
-  EXPECT_TRUE(moved.get(Vec3i(8, 6, 4)));
-}
-
-TEST(OccupancyGrid, LargeFillCountsEveryVoxel) {
-  const Volume like(Vec3i(48, 48, 48), Vec3f(1, 1, 1), Vec3f(0, 0, 0), VoxelType::UInt8);
-  OccupancyGrid grid(like);
-  std::size_t expected = 0;
-  for (int k = 0; k < 48; ++k)
-    for (int j = 0; j < 48; ++j)
-      for (int i = 0; i < 48; ++i)
-        if ((i - 24) * (i - 24) + (j - 24) * (j - 24) + (k - 24) * (k - 24) <= 400) {
-          grid.set(Vec3i(i, j, k));
-          ++expected;
-        }
-  EXPECT_EQ(grid.active_count(), expected);
-  const Volume labels = grid.to_labels();
-  std::size_t on = 0;
-  for (auto v : labels.u8()) on += v;
-  EXPECT_EQ(on, expected);
-}
 
 TEST(WriteVdb, FloatGridReadsBackWithTransformAndValues) {
   const auto dir = std::filesystem::temp_directory_path() / "sonomesh_volume_vdb_test";

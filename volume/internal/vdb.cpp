@@ -39,8 +39,8 @@ struct IndexSpaceGrid {
   Vec3f spacing_mm;
   Vec3f origin_mm;
   typename GridT::Ptr grid;
-  // Logically const reads (OccupancyGrid::get) go through it too. One per grid: one thread.
-  mutable typename GridT::Accessor accessor;
+  // For writing (FrontGrid::mark), from one thread; readers make their own.
+  typename GridT::Accessor accessor;
 
   IndexSpaceGrid(const Volume& like, typename GridT::ValueType background, const char* name)
       : dims(like.dims()),
@@ -74,40 +74,6 @@ struct IndexSpaceGrid {
   }
 };
 
-struct OccupancyGrid::Impl : IndexSpaceGrid<openvdb::BoolGrid> {
-  explicit Impl(const Volume& like) : IndexSpaceGrid(like, false, "occupancy") {}
-};
-
-OccupancyGrid::OccupancyGrid(const Volume& like) {
-  if (like.empty()) throw std::invalid_argument("OccupancyGrid: empty reference volume");
-  impl_ = std::make_unique<Impl>(like);
-}
-OccupancyGrid::~OccupancyGrid() = default;
-OccupancyGrid::OccupancyGrid(OccupancyGrid&&) noexcept = default;
-OccupancyGrid& OccupancyGrid::operator=(OccupancyGrid&&) noexcept = default;
-
-bool OccupancyGrid::get(const Vec3i& ijk) const {
-  if (!impl_) throw std::logic_error("OccupancyGrid: used after move");
-  return impl_->accessor.isValueOn(coord(ijk));
-}
-
-void OccupancyGrid::set(const Vec3i& ijk, bool on) {
-  if (!impl_) throw std::logic_error("OccupancyGrid: used after move");
-  if (on)
-    impl_->accessor.setValueOn(coord(ijk), true);
-  else
-    impl_->accessor.setValueOff(coord(ijk), false);
-}
-
-std::size_t OccupancyGrid::active_count() const {
-  if (!impl_) throw std::logic_error("OccupancyGrid: used after move");
-  return static_cast<std::size_t>(impl_->grid->activeVoxelCount());
-}
-
-Volume OccupancyGrid::to_labels() const {
-  if (!impl_) throw std::logic_error("OccupancyGrid: used after move");
-  return impl_->to_labels();
-}
 
 // ---------------------------------------------------------------------------------------------
 // FrontGrid: A_t with the sweeping front's normal per voxel, packed into one int32 (x, y, z as
