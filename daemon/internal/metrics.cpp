@@ -2,6 +2,8 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
+#include <cstring>
 #include <limits>
 #include <stdexcept>
 #include <thread>
@@ -106,6 +108,18 @@ const std::vector<std::uint8_t>& label_data(const Volume& labels) {
   return labels.u8();
 }
 
+// Index of the first non-zero byte of row[0, n), n if none; eight bytes per step while they are 0.
+int first_nonzero(const std::uint8_t* row, int n) {
+  int i = 0;
+  for (; i + 8 <= n; i += 8) {
+    std::uint64_t word;
+    std::memcpy(&word, row + i, sizeof word);
+    if (word != 0) break;
+  }
+  while (i < n && row[i] == 0) ++i;
+  return i;
+}
+
 // Inside voxels with a 6-neighbour outside or on the border of the volume.
 std::vector<bool> boundary_of(const Volume& labels) {
   const Vec3i d = labels.dims();
@@ -142,33 +156,42 @@ std::vector<float> squared_distance_transform_mm2(const std::vector<bool>& featu
 bool deepest_interior_index(const Volume& labels, Vec3i& ijk, float& depth_mm) {
   const Vec3i d = labels.dims();
   const auto& data = label_data(labels);
-  auto inside = [&](int i, int j, int k) { return data[labels.linear_index(i, j, k)] != 0; };
   // Crop to the labels' bounding box plus one voxel: the target is usually a small part of the
-  // volume, and the transform then costs a fraction of a full-volume pass.
+  // volume, and the transform then costs a fraction of a full-volume pass. The box is found row
+  // by row, from each row's first and last inside voxel, eight voxels per step: voxel by voxel,
+  // this scan was three quarters of the whole function (128³: ~45 M instructions).
   Vec3i lo = d, hi = Vec3i::Constant(-1);
   for (int k = 0; k < d.z(); ++k)
-    for (int j = 0; j < d.y(); ++j)
-      for (int i = 0; i < d.x(); ++i)
-        if (inside(i, j, k)) {
-          lo = lo.cwiseMin(Vec3i(i, j, k));
-          hi = hi.cwiseMax(Vec3i(i, j, k));
-        }
+    for (int j = 0; j < d.y(); ++j) {
+      const std::uint8_t* row = data.data() + labels.linear_index(0, j, k);
+      const int first = first_nonzero(row, d.x());
+      if (first == d.x()) continue;
+      int last = d.x() - 1;
+      while (row[last] == 0) --last;
+      lo = lo.cwiseMin(Vec3i(first, j, k));
+      hi = hi.cwiseMax(Vec3i(last, j, k));
+    }
   if ((hi.array() < 0).any()) return false;
   lo = (lo - Vec3i::Ones()).cwiseMax(Vec3i::Zero());
   hi = (hi + Vec3i::Ones()).cwiseMin(d - Vec3i::Ones());
   const Vec3i cd = hi - lo + Vec3i::Ones();
   // Feature = outside. The crop may end at the volume border with the label still on: voxels
-  // beyond the border count as outside, which a one-voxel frame of "outside" models.
+  // beyond the border count as outside, which a one-voxel frame of "outside" models. The grid is
+  // set up for the transform directly (0 outside, kFar inside), row by row, not through a
+  // std::vector<bool> of the feature (which cost as much as the transform). Every voxel has the
+  // frame within reach, so none stays at kFar.
   const Vec3i fd = cd + Vec3i::Constant(2);
-  std::vector<bool> outside(static_cast<std::size_t>(fd.x()) * fd.y() * fd.z(), true);
   auto fidx = [&](int i, int j, int k) {
     return (static_cast<std::size_t>(k) * fd.y() + j) * fd.x() + i;
   };
+  std::vector<float> d2(static_cast<std::size_t>(fd.x()) * fd.y() * fd.z(), 0.0f);
   for (int k = 0; k < cd.z(); ++k)
-    for (int j = 0; j < cd.y(); ++j)
-      for (int i = 0; i < cd.x(); ++i)
-        outside[fidx(i + 1, j + 1, k + 1)] = !inside(lo.x() + i, lo.y() + j, lo.z() + k);
-  const auto d2 = squared_distance_transform_mm2(outside, fd, labels.spacing_mm());
+    for (int j = 0; j < cd.y(); ++j) {
+      const std::uint8_t* row = data.data() + labels.linear_index(lo.x(), lo.y() + j, lo.z() + k);
+      float* out = d2.data() + fidx(1, j + 1, k + 1);
+      for (int i = 0; i < cd.x(); ++i) out[i] = row[i] != 0 ? kFar : 0.0f;
+    }
+  for (int axis = 0; axis < 3; ++axis) transform_axis(d2, fd, axis, labels.spacing_mm()[axis]);
   float best = -1.0f;
   for (int k = 1; k <= cd.z(); ++k)
     for (int j = 1; j <= cd.y(); ++j)
