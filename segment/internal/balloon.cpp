@@ -18,9 +18,9 @@
 #include <chrono>
 #include <cmath>
 #include <cstdint>
+#include <span>
 #include <stdexcept>
 #include <string>
-#include <span>
 #include <thread>
 #include <vector>
 
@@ -59,7 +59,7 @@ class FrontMarks {
 
   // Voxel containing p (voxel centres at integer indices); false outside the volume.
   bool voxel(const Vec3f& p_mm, Vec3i& ijk) const {
-    // Per axis by hand: Eigen's cwise expressions with all() compiled to an out-of-line call
+    // Per axis by hand: with Eigen's cwise expressions and all() it was compiled out of line
     // (3 % of the balloon's instructions).
     const float ux = (p_mm.x() - origin_mm_.x()) * inv_spacing_.x() + 0.5f;
     const float uy = (p_mm.y() - origin_mm_.y()) * inv_spacing_.y() + 0.5f;
@@ -185,7 +185,7 @@ void extract(const BalloonMesh& bm, Arrays& a) {
       h = next[h ^ 1u].idx;  // clockwise to the next outgoing halfedge
     } while (h != start);
   }
-  a.ring_begin[nv] = r;  // (the ring arrays keep their size: cut and regrown, they were cleared)
+  a.ring_begin[nv] = r;  // (the ring arrays keep their size: cut and regrown, they were zeroed again)
   const auto face_h = bm.face_halfedges();
   a.tri.resize(nf);
   a.face_normal.resize(nf);
@@ -217,7 +217,6 @@ using Clock = std::chrono::steady_clock;
 double ms_since(Clock::time_point t) {
   return std::chrono::duration<double, std::milli>(Clock::now() - t).count();
 }
-
 
 // The increment of Ψ_cost for a step d through a point with gradient g, before the scale's
 // weight: the paper's max(0, <g, d>), or summed per grid axis (BalloonOptions::rise_per_axis).

@@ -424,7 +424,9 @@ void BalloonMesh::garbage_collection() {
       Halfedge& out = vertex_halfedge_[halfedge_vertex_[h ^ 1u].idx];  // of h's from-vertex
       out = new_halfedge(out);
       renew_loop(h);
-      if (halfedge_face_[h].valid()) face_halfedge_[halfedge_face_[h].idx] = new_halfedge(face_halfedge_[halfedge_face_[h].idx]);
+      if (!halfedge_face_[h].valid()) continue;  // a boundary while add_triangle() builds
+      Halfedge& held = face_halfedge_[halfedge_face_[h].idx];  // of h's face
+      held = new_halfedge(held);
     }
   }
   for (const std::uint32_t v : vmap) {  // the halfedges into it: the twins of its outgoing ones
