@@ -94,9 +94,10 @@ struct BalloonOptions {
                                   // worst −1.21 / −1.36, 4 of 22 balloons with every vertex within
                                   // a voxel; snapped −0.09 / −0.04, worst +1.07 / +1.32, 19 of 22
                                   // (the rest: single vertices where speckle moved the image's own
-                                  // edge); with L = 1.75 (below) 21 of 22, worst 1.02. No peak in the window, or one below snap_min_slope: no
-                                  // wall there, the vertex stays. Both passes snap; reinflate no
-                                  // further ahead than its move bound.
+                                  // edge); with L = 1.75 (below) 21 of 22, worst 1.02. No peak in
+                                  // the window, or one below snap_min_slope: no wall there, the
+                                  // vertex stays. Both passes snap; reinflate no further ahead
+                                  // than its move bound.
   float snap_back_vox = 1.0f;     // the window behind the stop (vertices that over-shot)...
   float snap_ahead_vox = 1.5f;    // ...and ahead of it: speckle stops vertices early more often
                                   // and further than late; back + ahead <= 8

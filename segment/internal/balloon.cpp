@@ -99,7 +99,12 @@ struct Workers {
   bool serial = false;
   static constexpr std::size_t kHeavy = 128, kLight = 512;
 
-  explicit Workers(int threads) : arena(threads), serial(threads == 1) {}
+  // `requested` as BalloonOptions::threads has it: 0 = all hardware threads.
+  explicit Workers(int requested) : arena(resolved(requested)), serial(resolved(requested) == 1) {}
+
+  static int resolved(int requested) {
+    return requested > 0 ? requested : std::max(1, static_cast<int>(std::thread::hardware_concurrency()));
+  }
 
   template <typename F>
   void parallel_for(std::size_t n, std::size_t grain, F&& f) {
@@ -507,9 +512,7 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::G
   const std::size_t max_vertices = static_cast<std::size_t>(
       options.max_area_fraction * box_area_mm2 / (0.433f * edge_mm * edge_mm) * 0.5f) + 1000;
 
-  const int threads = options.threads > 0 ? options.threads
-                                          : std::max(1, static_cast<int>(std::thread::hardware_concurrency()));
-  Workers workers(threads);
+  Workers workers(options.threads);
 
   FrontMarks marks(*smoothed);
   Arrays a;
@@ -899,9 +902,7 @@ BalloonResult reinflate(const volume::Volume& smoothed_in, const volume::Gradien
   // Each vertex starts as if it had climbed from the seed's level to where it stands (Ψ_cost is
   // what a path from inside has climbed), so a vertex part-way up the wall climbs only the rest.
   // A vertex already above the level where the first pass stops is at or past the wall: it stays.
-  const int threads = options.threads > 0 ? options.threads
-                                          : std::max(1, static_cast<int>(std::thread::hardware_concurrency()));
-  Workers workers(threads);
+  Workers workers(options.threads);
   workers.parallel_for(nv, Workers::kLight, [&](std::size_t b, std::size_t e) {
     for (std::size_t v = b; v < e; ++v) {
       const float level = scale.map(sampler.value(pos[v]));
@@ -934,17 +935,15 @@ BalloonResult reinflate(const volume::Volume& smoothed_in, const volume::Gradien
     const float len = n.norm();
     return len > 0.0f ? Vec3f(n / len) : Vec3f::Zero();
   };
-  std::vector<std::uint32_t> moved_now;  // this iteration's active vertices
   int it = 0;
   for (it = 1; it <= pass.max_iterations && !active.empty(); ++it) {
     if (stop.stop_requested()) {
       stats.cancelled = true;
       break;
     }
-    moved_now.assign(active.begin(), active.end());
-    workers.parallel_for(moved_now.size(), Workers::kHeavy, [&](std::size_t b, std::size_t e) {
+    workers.parallel_for(active.size(), Workers::kHeavy, [&](std::size_t b, std::size_t e) {
       for (std::size_t k = b; k < e; ++k) {
-        const std::uint32_t v = moved_now[k];
+        const std::uint32_t v = active[k];
         const Vec3f p = pos[v];
         Vec3f n = Vec3f::Zero(), centroid = Vec3f::Zero();
         for (std::uint32_t i = face_begin[v]; i < face_begin[v + 1]; ++i) {
@@ -970,7 +969,7 @@ BalloonResult reinflate(const volume::Volume& smoothed_in, const volume::Gradien
       }
     });
     // Every update above read the previous iterate; now they take effect.
-    for (const std::uint32_t v : moved_now) pos[v] = next_pos[v];
+    for (const std::uint32_t v : active) pos[v] = next_pos[v];
     std::erase_if(active, [&](std::uint32_t v) { return reason[v] != StopReason::Moving; });
   }
   stats.iterations = std::min(it, pass.max_iterations);
