@@ -22,6 +22,9 @@ struct RawVolume {
   ProbeVoxelType type = ProbeVoxelType::UInt8;
   std::array<float, 3> spacing_mm{1.0f, 1.0f, 1.0f};
   std::array<float, 3> origin_mm{0.0f, 0.0f, 0.0f};
+  /// Orientation of the grid in the world (LPS) frame: column-major 3x3, column c is the unit
+  /// direction of index axis c. world_mm = origin_mm + direction * (spacing_mm ⊙ ijk).
+  std::array<float, 9> direction{1.0f, 0.0f, 0.0f, 0.0f, 1.0f, 0.0f, 0.0f, 0.0f, 1.0f};
   std::vector<std::uint8_t> voxels;  // nx*ny*nz*bytes_per_voxel(type), little endian
   std::chrono::steady_clock::time_point received{};  // host clock, when the last byte arrived
 };

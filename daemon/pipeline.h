@@ -22,7 +22,16 @@ namespace sonomesh::daemon {
 using volume::Vec3f;
 using volume::Vec3i;
 
+/// Polarity of the target (DESIGN.md "Targets, polarity and the quality verdict"): darker than
+/// its surroundings (cyst, cardiac cavity), brighter (hyperechoic lesion, CT organ), or decided
+/// from the seed region against its surroundings.
+enum class TargetPolarity { Dark, Bright, Auto };
+
+/// "dark", "bright", "auto".
+const char* to_string(TargetPolarity target);
+
 struct PipelineConfig {
+  TargetPolarity target = TargetPolarity::Dark;
   /// Gaussian sigma of the pre-smoothing in mm. Unset: one voxel of the finest axis (0.5 mm on the
   /// simulator's grid), which removes single-voxel speckle without moving walls by more than a
   /// fraction of a voxel. 0 disables smoothing.
@@ -83,6 +92,13 @@ struct PipelineResult {
   float grid_cell_mm = 0.0f;
   float grid_feature_mm = std::numeric_limits<float>::infinity();  // narrowest feature the
                                    // samples showed (infinity: none thin enough to matter)
+
+  /// The polarity the pipeline segmented with (never Auto: auto resolves to dark or bright).
+  TargetPolarity target = TargetPolarity::Dark;
+  /// The quality verdict: true is "ok"; false is "suspect", with short reasons (for example
+  /// "stalled near the seed", "touches the volume edge", "leak bound", "implausibly small").
+  bool quality_ok = true;
+  std::vector<std::string> quality_reasons;
 
   StageTimings timings;
   std::optional<volume::Volume> labels;     // UInt8 on the input grid, inside = 1

@@ -21,6 +21,7 @@ namespace sonomesh::volume {
 using Vec3f = Eigen::Vector3f;
 using Vec3d = Eigen::Vector3d;
 using Vec3i = Eigen::Vector3i;
+using Mat3f = Eigen::Matrix3f;
 
 enum class VoxelType : std::uint8_t { UInt8, UInt16, Float32 };
 
@@ -41,6 +42,17 @@ class Volume {
   const Vec3f& spacing_mm() const { return spacing_mm_; }
   const Vec3f& origin_mm() const { return origin_mm_; }
   void set_origin_mm(const Vec3f& origin_mm) { origin_mm_ = origin_mm; }
+  /// Orientation in the world (LPS) frame: column c is the unit direction of index axis c.
+  /// Processing runs in the grid frame (origin_mm + spacing_mm ⊙ ijk, as if the direction were
+  /// the identity); grid_to_world_mm maps its results into the world.
+  const Mat3f& direction() const { return direction_; }
+  void set_direction(const Mat3f& direction) { direction_ = direction; }
+  Vec3f grid_to_world_mm(const Vec3f& p_mm) const {
+    return origin_mm_ + direction_ * (p_mm - origin_mm_);
+  }
+  Vec3f world_to_grid_mm(const Vec3f& p_mm) const {
+    return origin_mm_ + direction_.transpose() * (p_mm - origin_mm_);
+  }
   VoxelType type() const;
   bool empty() const { return voxel_count() == 0; }
   std::size_t voxel_count() const {
@@ -80,6 +92,7 @@ class Volume {
   Vec3i dims_ = Vec3i::Zero();
   Vec3f spacing_mm_ = Vec3f::Ones();
   Vec3f origin_mm_ = Vec3f::Zero();
+  Mat3f direction_ = Mat3f::Identity();
   std::variant<std::vector<std::uint8_t>, std::vector<std::uint16_t>, std::vector<float>> data_;
 };
 

@@ -30,6 +30,15 @@ void count_stops(const std::vector<segment::StopReason>& stop, StopCounts& count
 
 }  // namespace
 
+const char* to_string(TargetPolarity target) {
+  switch (target) {
+    case TargetPolarity::Dark: return "dark";
+    case TargetPolarity::Bright: return "bright";
+    case TargetPolarity::Auto: return "auto";
+  }
+  return "dark";
+}
+
 PipelineResult run_pipeline(const volume::Volume& input, const Vec3f& seed_mm,
                             const PipelineConfig& config, std::stop_token stop) {
   PipelineBuffers buffers;

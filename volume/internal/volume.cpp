@@ -36,6 +36,7 @@ Volume Volume::from_raw(const acquire::RawVolume& raw) {
   const VoxelType type =
       raw.type == acquire::ProbeVoxelType::UInt16 ? VoxelType::UInt16 : VoxelType::UInt8;
   Volume v(dims, spacing, origin, type);
+  v.set_direction(Eigen::Map<const Mat3f>(raw.direction.data()));
   const std::size_t bytes = v.voxel_count() * acquire::bytes_per_voxel(raw.type);
   if (raw.voxels.size() != bytes)
     throw std::invalid_argument("Volume::from_raw: payload has " + std::to_string(raw.voxels.size()) +
