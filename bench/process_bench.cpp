@@ -2,12 +2,16 @@
 // and every daemon job run) on simulator phantoms of 128³ and 256³.
 //   process_bench [--sizes 128,256] [--phantoms cyst-needle,torus] [--repeat 5] [--format md|json]
 //                 [--fresh-buffers]
+//   process_bench --hash [--sizes 96,128] [--phantoms ...] [--threads 1,2]
+// --hash prints, per case, a 64-bit FNV-1a hash of the balloon (positions and stop reasons) and of
+// the final mesh (positions and triangles) instead of timings: a refactoring must keep them.
 // One warm-up run per case (FFTW plans, page faults), then the median of --repeat runs per stage.
 // The runs reuse one PipelineBuffers, as the daemon's worker does; --fresh-buffers allocates the
 // smoothed volume and gradient anew per run, as a single `sonomeshd process` does.
 // Targets (DESIGN/issue 4): total <= 100 ms at 128³, <= 750 ms at 256³.
 #include <CLI/CLI.hpp>
 #include <algorithm>
+#include <cstdint>
 #include <cstdio>
 #include <nlohmann/json.hpp>
 #include <string>
@@ -19,6 +23,45 @@
 namespace {
 
 using namespace sonomesh;
+
+// FNV-1a over raw bytes: positions are compared bit for bit, not within a tolerance.
+struct Fnv1a {
+  std::uint64_t h = 1469598103934665603ull;
+  void add(const void* data, std::size_t bytes) {
+    const auto* p = static_cast<const unsigned char*>(data);
+    for (std::size_t i = 0; i < bytes; ++i) h = (h ^ p[i]) * 1099511628211ull;
+  }
+  template <class T>
+  void add_all(const std::vector<T>& v) {
+    if (!v.empty()) add(v.data(), v.size() * sizeof(T));
+  }
+};
+
+int print_hashes(const std::vector<int>& sizes, const std::vector<std::string>& phantoms,
+                 const std::vector<int>& threads) {
+  std::printf("%-12s %5s %7s %-18s %-18s %s\n", "phantom", "size", "threads", "balloon",
+              "mesh", "genus");
+  for (const int size : sizes)
+    for (const std::string& name : phantoms)
+      for (const int t : threads) {
+        const sim::Phantom phantom = sim::make_phantom({.phantom = name, .size_vox = size});
+        daemon::PipelineConfig config;
+        config.balloon.threads = t;
+        config.poisson.fft_threads = t;
+        const daemon::PipelineResult r = daemon::run_pipeline(phantom.image, phantom.seed_mm, config);
+        Fnv1a balloon, mesh;
+        balloon.add_all(r.balloon.vertices);
+        balloon.add_all(r.balloon_stop);
+        mesh.add_all(r.mesh.vertices);
+        mesh.add_all(r.mesh.triangles);
+        std::printf("%-12s %5d %7d %016llx   %016llx   %d%s\n", name.c_str(), size, t,
+                    static_cast<unsigned long long>(balloon.h),
+                    static_cast<unsigned long long>(mesh.h), r.topology.genus,
+                    r.ok ? "" : " (failed)");
+        std::fflush(stdout);
+      }
+  return 0;
+}
 
 double median(std::vector<double> values) {
   std::sort(values.begin(), values.end());
@@ -33,12 +76,15 @@ int main(int argc, char** argv) {
   std::vector<std::string> phantoms{"sphere", "cyst-needle"};
   int repeat = 5;
   std::string format = "md";
-  bool fresh_buffers = false;
+  bool fresh_buffers = false, hash = false;
+  std::vector<int> threads{1, 2};
   app.add_option("--sizes", sizes, "Volume edges (voxels)")->delimiter(',');
   app.add_option("--phantoms", phantoms, "Phantom names")->delimiter(',');
   app.add_option("--repeat", repeat, "Timed runs per case")->check(CLI::Range(1, 100));
   app.add_option("--format", format, "md or json")->check(CLI::IsMember({"md", "json"}));
   app.add_flag("--fresh-buffers", fresh_buffers, "Allocate the smoothing buffers per run");
+  app.add_flag("--hash", hash, "Print balloon and mesh hashes instead of timings");
+  app.add_option("--threads", threads, "Thread counts for --hash")->delimiter(',');
   try {
     app.parse(argc, argv);
   } catch (const CLI::CallForHelp& e) {
@@ -46,6 +92,14 @@ int main(int argc, char** argv) {
   } catch (const CLI::ParseError& e) {
     std::fprintf(stderr, "process_bench: %s\n", e.what());
     return 2;
+  }
+  if (hash) {
+    try {
+      return print_hashes(sizes, phantoms, threads);
+    } catch (const std::exception& e) {
+      std::fprintf(stderr, "process_bench: %s\n", e.what());
+      return 1;
+    }
   }
   if (format == "md") {
     std::printf("| phantom | size | smooth | balloon | opening | reconstruct | mesh | reinflate | labels "
