@@ -161,48 +161,6 @@ Vec3f sample_gradient_mm(const Gradient& gradient, const Vec3f& p_mm);
 // ---------------------------------------------------------------------------------------------
 // OpenVDB grids (OpenVDB itself stays private to this module).
 
-/// The balloon's occupancy A_t (method.md §2): the voxels its front has swept, each holding the
-/// unit normal (quantised to 1/127) of the front that swept it first. Sparse: an openvdb::Int32Grid
-/// in the volume's index space, so memory follows the swept region, not the volume.
-/// Marking is for one thread at a time; reading goes through Readers, one per thread, and is safe
-/// from several threads at once while nothing marks (the balloon alternates the two phases).
-class FrontGrid {
- public:
-  explicit FrontGrid(const Volume& like);
-  ~FrontGrid();
-  FrontGrid(FrontGrid&&) noexcept;
-  FrontGrid& operator=(FrontGrid&&) noexcept;
-
-  /// Marks voxel `ijk` with `normal` unless it is marked already (the first front wins), so the
-  /// result depends only on the order of the calls. Returns whether it marked.
-  bool mark(const Vec3i& ijk, const Vec3f& normal);
-
-  /// Cached read access (an unregistered OpenVDB accessor: cheap to make, one per thread).
-  class Reader {
-   public:
-    explicit Reader(const FrontGrid& grid);
-    ~Reader();
-    Reader(Reader&&) noexcept;
-    /// Whether `ijk` is marked; if so, `normal` receives the front normal stored there.
-    bool normal(const Vec3i& ijk, Vec3f& normal) const;
-    bool marked(const Vec3i& ijk) const;
-
-   private:
-    struct Impl;
-    std::unique_ptr<Impl> impl_;
-  };
-
-  std::size_t marked_count() const;
-  /// Bytes the sparse tree holds (for benchmarks: memory follows the swept region).
-  std::size_t memory_bytes() const;
-  /// Dense uint8 labels (marked = 1) on the grid of `like`.
-  Volume to_labels() const;
-
- private:
-  struct Impl;
-  std::unique_ptr<Impl> impl_;
-};
-
 /// Writes a Float32 volume as an OpenVDB float grid named `grid_name`, with the volume's transform.
 std::optional<VolumeIoError> write_vdb(const Volume& field, const std::filesystem::path& path,
                                        const std::string& grid_name = "density");

@@ -1,0 +1,85 @@
+#pragma once
+/// @file
+/// @brief The balloon's first pass (method.md §1-3) as a class: one object per inflation, its
+/// phases (Euler step with the stop tests, normals, A_t marking, stall test, remeshing) methods.
+
+#include <cstdint>
+#include <limits>
+#include <stop_token>
+#include <string>
+#include <vector>
+
+#include "segment/internal/balloon_mesh.h"
+#include "segment/internal/flat_arrays.h"
+#include "segment/internal/front_grid.h"
+#include "segment/internal/image_sampler.h"
+#include "segment/internal/step.h"
+#include "segment/internal/stop_rules.h"
+#include "segment/internal/workers.h"
+
+namespace sonomesh::segment::internal {
+
+class BalloonEvolution {
+ public:
+  /// S^0: a UV sphere of `radius_mm` at the seed. `smoothed` (Float32) and `sampler` must outlive
+  /// the object; `stats` receives the counters and phase times.
+  BalloonEvolution(const volume::Volume& smoothed, const ImageSampler& sampler,
+                   const BalloonOptions& options, const CostRule& cost, const WallSnap& snap,
+                   const Vec3f& seed_mm, float radius_mm, BalloonStats& stats);
+
+  /// Evolves until every vertex stopped, the evolution stalled, the leak bound, a stop request
+  /// or the iteration limit; then the remaining moving vertices get IterationLimit.
+  void run(std::stop_token stop);
+
+  bool converged() const { return all_stopped_ || stats_.stalled; }
+  /// Why the leak bound ended it (empty unless stats.leaked).
+  std::string leak_message() const;
+  /// The balloon and its stop reasons (counted into stats.stop_counts).
+  void take_result(Mesh& mesh, std::vector<StopReason>& stop);
+
+ private:
+  // Per vertex and iteration: kMoved if it moved, kMarks as well if it also entered another
+  // voxel than the one it last marked A_t from (so it marks its samples again).
+  static constexpr std::uint8_t kMoved = 1, kMarks = 2;
+
+  void all_active();
+  int iterate();
+  bool advance_vertex(std::uint32_t v, const FrontGrid::Reader& reader);
+  void ring_sums(std::uint32_t v, const Vec3f& p, Vec3f& centroid, float& curvature) const;
+  void settle(std::uint32_t v, const Vec3f& n, bool stopped, const Vec3i& target_ijk,
+              bool target_in_volume, const FrontGrid::Reader& reader);
+  void compute_normals();
+  void mark_front();
+  void stage_samples(std::uint32_t v, const FrontGrid::Reader& reader);
+  bool stall_test(int now_moving);
+  bool needs_remesh() const;
+  void remesh();
+
+  const volume::Volume& smoothed_;
+  const ImageSampler& sampler_;
+  const BalloonOptions& options_;
+  const CostRule cost_;
+  const WallSnap snap_;
+  const StepKernel kernel_;
+  const RemeshLimits limits_;
+  const float stall_mm_;
+  const std::size_t max_vertices_;  // the leak bound
+  BalloonStats& stats_;
+
+  Workers workers_;
+  BalloonMesh bm_;
+  FrontMarks marks_;
+  FlatArrays a_;
+  // The vertices still moving (k = 1), ascending: every per-iteration loop runs over these only.
+  std::vector<std::uint32_t> active_;
+  // `active_` as it was after the last remeshing pass: the vertices write_back has to copy.
+  std::vector<std::uint32_t> window_;
+  std::vector<std::uint8_t> moved_;
+  std::vector<Vec3i> pending_;  // A_t samples to mark, slot r + v of vertex v's ring range
+
+  bool all_stopped_ = false;
+  int fewest_moving_ = std::numeric_limits<int>::max();
+  int windows_without_drop_ = 0;
+};
+
+}  // namespace sonomesh::segment::internal

@@ -1,0 +1,88 @@
+#pragma once
+/// @file
+/// @brief The boundary cost's stop rule and the wall snap, shared by the balloon's first pass and
+/// by reinflate (segment.h documents the options; docs/tuning.md the measurements).
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+#include "segment/internal/image_sampler.h"
+#include "segment/segment.h"
+
+namespace sonomesh::segment::internal {
+
+/// The increment of Ψ_cost for a step d through a point with gradient g, before the scale's
+/// weight: the paper's max(0, <g, d>), or summed per grid axis (BalloonOptions::rise_per_axis).
+inline float rise_along(const Vec3f& g, const Vec3f& d, bool per_axis) {
+  if (!per_axis) return std::max(0.0f, g.dot(d));
+  return std::max(0.0f, g.x() * d.x()) + std::max(0.0f, g.y() * d.y()) +
+         std::max(0.0f, g.z() * d.z());
+}
+
+/// The relative scale floors intensities at 10 % of the tissue level (BalloonOptions).
+CostScale cost_scale(bool relative, float tissue_level);
+
+/// Ψ_cost with its thresholds (method.md §2 and the departures BalloonOptions names).
+struct CostRule {
+  CostScale scale;
+  float tau = 0.0f;           // τ_cost
+  float tau_climb = 0.0f;     // the climb backstop
+  float window_mm = 0.0f;     // 0: the plain sum
+  float noise_per_mm = 0.0f;  // 0: no noise allowance
+  bool per_axis = false;      // BalloonOptions::rise_per_axis
+
+  /// Advances one vertex by the Euler step d from p: its Ψ_cost, darkest level and path. Returns
+  /// the fraction of d to take (1 unless it stops inside the step) and sets `stopped`.
+  /// (Inline: it runs per vertex and iteration.)
+  float advance(const ImageSampler& sampler, const Vec3f& p, const Vec3f& d, float& cost,
+                float& floor_level, float& path_mm, bool& stopped) const {
+    // Ψ_cost += max(0, <∇I, S^{n+1} − S^n>) with the gradient at the step's midpoint (the rise
+    // over the step to second order; taken at S^n it lags on a wall's rising flank).
+    float value;
+    Vec3f grad;
+    sampler.value_and_gradient(p + 0.5f * d, value, grad);
+    const float step_mm = d.norm();
+    const float level = scale.map(value);
+    floor_level = std::min(floor_level, level);
+    const float decayed = window_mm > 0.0f ? cost * std::exp(-step_mm / window_mm) : cost;
+    const float rise = rise_along(grad, d, per_axis) * scale.weight(value);
+    cost = decayed + rise;
+    const float travelled_mm = path_mm + step_mm;
+    float threshold = tau;
+    if (noise_per_mm > 0.0f)
+      threshold += window_mm > 0.0f
+                       ? noise_per_mm * window_mm * (1.0f - std::exp(-travelled_mm / window_mm))
+                       : noise_per_mm * travelled_mm;
+    // Where Ψ_cost crosses τ_cost inside the step, the vertex stops at the crossing (the rise
+    // taken as even along the step), so where it stops does not depend on the step length.
+    float t = 1.0f;
+    if (cost > threshold && rise > 0.0f)
+      t = std::clamp((threshold - decayed) / rise, 0.0f, 1.0f);
+    path_mm += t * step_mm;
+    stopped = cost > threshold || level - floor_level > tau_climb;
+    return t;
+  }
+};
+
+/// Where a vertex the boundary cost stopped ends (BalloonOptions::snap_to_wall): the peak of the
+/// image's slope along its normal nearest to the stop, within [-back, +ahead]; p itself where
+/// there is no steep enough peak (no wall to snap to).
+struct WallSnap {
+  bool on = false;
+  float back_mm = 0.0f, ahead_mm = 0.0f, step_mm = 0.0f;
+  float min_relative_slope_per_mm = 0.0f;  // <∇I, n> / I, per mm
+  float level_floor = 1.0f;                // I floored at this (a black target)
+  Vec3f box_lo, box_hi;                    // the volume's usable box (no data beyond)
+
+  static constexpr int kMaxSamples = 4 * 8 + 1;  // back + ahead <= 8 voxels (check_options)
+
+  /// `ahead_limit_mm` shortens the window ahead (reinflate's move bound).
+  Vec3f apply(const ImageSampler& sampler, const Vec3f& p, const Vec3f& n,
+              float ahead_limit_mm = std::numeric_limits<float>::max()) const;
+};
+
+WallSnap wall_snap(const BalloonOptions& o, float vox_mm, float tissue_level, const Vec3f& box_lo,
+                   const Vec3f& box_hi);
+
+}  // namespace sonomesh::segment::internal
