@@ -210,13 +210,14 @@ VolumeReadResult read_volume(const std::filesystem::path& path, const ReadOption
   try {
     if (ext == ".nrrd" || ext == ".nhdr") return read_nrrd(path, options);
     if (ext == ".mha" || ext == ".mhd") return read_metaimage(path, options);
+    if (ext == ".nii" || ext == ".nii.gz") return read_nifti(path, options);
   } catch (const std::bad_alloc&) {
     return {Volume{}, io_error(Code::IoError, path, "out of memory while reading")};
   } catch (const std::exception& e) {  // e.g. Volume refusing geometry no check above caught
     return {Volume{}, io_error(Code::BadHeader, path, e.what())};
   }
   return {Volume{}, io_error(Code::UnknownFormat, path,
-                             "unknown extension '" + ext + "' (expected .nrrd, .nhdr, .mha or .mhd)")};
+                             "unknown extension '" + ext + "' (expected .nrrd, .nhdr, .mha, .mhd, .nii or .nii.gz)")};
 }
 
 std::optional<VolumeIoError> write_volume(const Volume& volume, const std::filesystem::path& path,
@@ -227,11 +228,12 @@ std::optional<VolumeIoError> write_volume(const Volume& volume, const std::files
   try {
     if (ext == ".nrrd" || ext == ".nhdr") return write_nrrd(volume, path, compression);
     if (ext == ".mha" || ext == ".mhd") return write_metaimage(volume, path, compression);
+    if (ext == ".nii" || ext == ".nii.gz") return write_nifti(volume, path);
   } catch (const std::bad_alloc&) {
     return io_error(Code::IoError, path, "out of memory while writing");
   }
   return io_error(Code::UnknownFormat, path,
-                  "unknown extension '" + ext + "' (expected .nrrd, .nhdr, .mha or .mhd)");
+                  "unknown extension '" + ext + "' (expected .nrrd, .nhdr, .mha, .mhd, .nii or .nii.gz)");
 }
 
 }  // namespace sonomesh::volume
