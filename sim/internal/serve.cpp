@@ -41,6 +41,8 @@ struct ServeArgs {
   int size = 64;
   std::uint64_t count = 0;
   std::uint32_t seed = 1;
+  std::string realism;       // empty: as the --phantom URI says (default simple)
+  float contrast = -1.0f;    // < 0: as the --phantom URI says
   std::uint64_t corrupt_every = 0;
   std::uint64_t drop_every = 0;
   std::uint64_t truncate_every = 0;
@@ -142,6 +144,8 @@ class VolumeFeed {
       phantom_ = *parsed;
       phantom_.spec.size_vox = args.size;
       phantom_.spec.seed = args.seed;
+      if (args.realism == "echo") phantom_.spec = with_echo_realism(phantom_.spec);
+      if (args.contrast >= 0.0f) phantom_.spec.contrast = args.contrast;
       phantom_.rate_hz = args.rate_hz > 0 ? args.rate_hz : 10.0;
     }
   }
@@ -317,6 +321,9 @@ void add_serve_command(CLI::App& app, int& exit_code) {
   cmd->add_option("--size", args->size, "phantom edge in voxels");
   cmd->add_option("--count", args->count, "volumes before end of stream (0 = endless)");
   cmd->add_option("--seed", args->seed, "phantom random seed");
+  cmd->add_option("--realism", args->realism, "image model: simple or echo (a probe's sector view)")
+      ->check(CLI::IsMember({"simple", "echo"}));
+  cmd->add_option("--contrast", args->contrast, "phantom contrast, 0..1")->check(CLI::Range(0.0, 1.0));
   cmd->add_option("--corrupt-every", args->corrupt_every, "flip a bit in every Nth record (header or payload)");
   cmd->add_option("--drop-every", args->drop_every, "skip every Nth record (a sequence gap)");
   cmd->add_option("--truncate-every", args->truncate_every, "send half of every Nth record, then close");
