@@ -50,7 +50,13 @@ struct PhantomSpec {
   // Echo only: speckle grain, the Gaussian sigma in mm of the speckle's lateral correlation (axial:
   // half of it, as a pulse is shorter than a beam is wide). Simple mode uses 1.0/0.6 voxel.
   float speckle_mm = 0.6f;
+  // The grid lies obliquely in the world: image and truth get direction oblique_direction()
+  // (about the origin, volume::Volume::grid_to_world_mm). Voxels and truth are unchanged.
+  bool oblique = false;
 };
+
+/// The fixed rotation of PhantomSpec::oblique: 30 degrees about x, then 20 degrees about z (LPS).
+volume::Mat3f oblique_direction();
 
 /// The echo preset: realism Echo, fully developed speckle (1) and 3 dB/cm round-trip attenuation
 /// (soft tissue at ~3 MHz), the other fields as given.
@@ -63,7 +69,7 @@ struct Phantom {
   std::string name;
   int genus = 0;         // topology of the target surface
   Vec3i seed_index = Vec3i::Zero();  // a voxel well inside the target
-  Vec3f seed_mm = Vec3f::Zero();     // the same point in mm
+  Vec3f seed_mm = Vec3f::Zero();     // the same point in mm, grid frame (image.index_to_mm)
 };
 
 /// Names accepted in PhantomSpec::phantom.
@@ -85,8 +91,8 @@ const std::vector<std::string>& phantom_names();
 /// zero axis. In echo mode the truth is the same as in simple mode (same spec, same labels).
 Phantom make_phantom(const PhantomSpec& spec);
 
-/// The phantom's image as a probe record (sequence and timestamp as given). UInt8 and UInt16
-/// volumes only. @throws std::invalid_argument for a Float32 volume.
+/// The phantom's image as a probe record (sequence and timestamp as given; direction and origin
+/// from the volume). UInt8 and UInt16 volumes only. @throws std::invalid_argument for a Float32 volume.
 acquire::RawVolume to_raw(const volume::Volume& image, std::uint64_t sequence,
                           std::uint64_t timestamp_ns);
 

@@ -1,3 +1,4 @@
+#include <Eigen/Geometry>
 #include <algorithm>
 #include <cmath>
 #include <stdexcept>
@@ -85,6 +86,11 @@ Realism parse_realism(const std::string& name) {
 }
 
 const char* to_string(Realism realism) { return realism == Realism::Echo ? "echo" : "simple"; }
+
+volume::Mat3f oblique_direction() {
+  const float ax = 30.0f * 3.14159265f / 180.0f, az = 20.0f * 3.14159265f / 180.0f;
+  return (Eigen::AngleAxisf(az, Vec3f::UnitZ()) * Eigen::AngleAxisf(ax, Vec3f::UnitX())).toRotationMatrix();
+}
 
 PhantomSpec with_echo_realism(PhantomSpec spec) {
   spec.realism = Realism::Echo;
@@ -177,6 +183,10 @@ Phantom make_phantom(const PhantomSpec& spec) {
 
   out.seed_index = deepest_voxel(out.truth);
   out.seed_mm = out.image.index_to_mm(out.seed_index.cast<float>());
+  if (spec.oblique) {  // seed_mm stays in the grid frame, where the pipeline runs
+    out.image.set_direction(oblique_direction());
+    out.truth.set_direction(oblique_direction());
+  }
   return out;
 }
 
@@ -188,6 +198,8 @@ acquire::RawVolume to_raw(const volume::Volume& image, std::uint64_t sequence,
   raw.dims = {image.dims().x(), image.dims().y(), image.dims().z()};
   raw.spacing_mm = {image.spacing_mm().x(), image.spacing_mm().y(), image.spacing_mm().z()};
   raw.origin_mm = {image.origin_mm().x(), image.origin_mm().y(), image.origin_mm().z()};
+  for (int c = 0; c < 3; ++c)
+    for (int a = 0; a < 3; ++a) raw.direction[3 * c + a] = image.direction()(a, c);
   switch (image.type()) {
     case volume::VoxelType::UInt8:
       raw.type = acquire::ProbeVoxelType::UInt8;
