@@ -86,7 +86,7 @@ INSTANTIATE_TEST_SUITE_P(
     });
 
 TEST(SimTopology, GenusFieldMatchesNames) {
-  EXPECT_EQ(phantom_names().size(), 5u);
+  EXPECT_EQ(phantom_names().size(), 6u);
   const std::pair<const char*, int> expected[] = {
       {"sphere", 0}, {"ellipsoid", 0}, {"torus", 1}, {"cyst-needle", 1}, {"double-torus", 2}};
   for (const auto& [name, genus] : expected) {
