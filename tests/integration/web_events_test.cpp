@@ -57,6 +57,7 @@ std::vector<SseEvent> read_events(int port, std::size_t count, const std::string
     }
     return events.size() < count;  // false: close the stream
   });
+  if (events.size() > count) events.resize(count);  // one chunk may carry several events
   return events;
 }
 
