@@ -15,6 +15,7 @@
 
 #include "daemon/commands.h"
 #include "daemon/internal/http_status.h"
+#include "daemon/internal/live_extras.h"
 #include "daemon/internal/live_runner.h"
 #include "daemon/internal/run_config.h"
 #include "daemon/internal/run_sources.h"
@@ -125,15 +126,22 @@ int run_daemon(const RunFlags& flags) {
     return 1;
   }
 
+  // web (issue 18): the live page's event stream and slices, systemd's notify protocol.
+  LiveExtras extras(config.out, runner->stats());
+  runner->set_hooks(extras.hooks());
+  extras.start();
+
   std::unique_ptr<HttpStatusServer> http;
   if (config.http_address != "off") {
     const HttpAddress address = *parse_http_address(config.http_address);
     http = std::make_unique<HttpStatusServer>(
         runner->stats(), config.out / "latest.ply",
         [&runner](const std::array<float, 3>& seed) { return runner->set_seed(seed); });
+    http->set_web(extras.web());
     try {
       const int port = http->start(address);
-      spdlog::info("HTTP status on http://{}:{}/status", address.host, port);
+      spdlog::info("HTTP status on http://{}:{}/status, live page http://{}:{}/", address.host,
+                   port, address.host, port);
       runner->event("http_listening", {{"host", address.host}, {"port", port}});
     } catch (const std::exception& e) {
       http.reset();
@@ -145,6 +153,7 @@ int run_daemon(const RunFlags& flags) {
     }
   }
 
+  extras.serving(true);  // web: READY=1 once the source is open too
   spdlog::info("sonomeshd run: source {} ({}), out {}", config.source,
                opened.live ? "live: newest volume wins" : "replay: every volume", config.out.string());
   std::atomic<bool> done{false};
@@ -164,6 +173,7 @@ int run_daemon(const RunFlags& flags) {
         spdlog::info("{}: stopping after the volume in hand (again to abort it)",
                      sig == SIGINT ? "SIGINT" : "SIGTERM");
         runner->event("signal", {{"signal", sig == SIGINT ? "SIGINT" : "SIGTERM"}});
+        extras.stop_requested();  // web: STOPPING=1
         runner->request_stop();
       } else if (sig == SIGHUP) {
         if (flags.config_file.empty()) {
@@ -183,6 +193,7 @@ int run_daemon(const RunFlags& flags) {
   const int rc = runner->run();
   done = true;
   signal_thread.join();
+  extras.stop();  // web: ends the event streams first, or the HTTP server would wait for them
   if (http) http->stop();
   spdlog::info("journal: {}", (config.out / "journal.jsonl").string());
   return rc;

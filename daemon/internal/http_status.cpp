@@ -146,6 +146,8 @@ int HttpStatusServer::start(const HttpAddress& address) {
     res.set_content(nlohmann::json{{"seed_mm", *seed}}.dump() + "\n", "application/json");
   });
 
+  if (web_) add_web_routes(s, *web_);  // web: the live page, /events, /slices
+
   int port = address.port;
   if (port == 0) {
     port = s.bind_to_any_port(address.host);

@@ -12,6 +12,7 @@
 #include <thread>
 
 #include "daemon/internal/run_stats.h"
+#include "daemon/internal/web_routes.h"
 
 namespace httplib {
 class Server;
@@ -43,6 +44,9 @@ class HttpStatusServer {
   HttpStatusServer(const HttpStatusServer&) = delete;
   HttpStatusServer& operator=(const HttpStatusServer&) = delete;
 
+  /// web (issue 18): also serve the live page, /events and /slices (call before start()).
+  void set_web(WebContext web) { web_ = std::move(web); }
+
   /// Binds and starts serving on a thread of its own. Returns the bound port.
   /// @throws std::runtime_error if the address cannot be bound.
   int start(const HttpAddress& address);
@@ -53,6 +57,7 @@ class HttpStatusServer {
   const RunStats& stats_;
   std::filesystem::path latest_ply_;
   SeedHandler on_seed_;
+  std::optional<WebContext> web_;
   std::unique_ptr<httplib::Server> server_;
   std::thread thread_;
 };

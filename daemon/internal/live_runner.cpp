@@ -418,6 +418,7 @@ void LiveRunner::handle_error(const AcquireError& error) {
 
 void LiveRunner::worker_loop() {
   while (true) {
+    if (hooks_.worker_turn) hooks_.worker_turn();  // web hook: systemd watchdog from this loop
     auto item = queue_->pop(kPollTimeout);
     stats_.set_queue_depth(queue_->size(), queue_->capacity());
     if (!item) {
@@ -530,6 +531,8 @@ void LiveRunner::process_one(QueuedVolume item) {
   line["faces"] = result.topology.faces;
   line["volume_ml"] = result.enclosed_volume_ml;
   line["balloon_iterations"] = result.balloon_iterations;
+
+  if (hooks_.result) hooks_.result(input, result.mesh, seed_mm, seq);  // web hook: /slices
 
   WriteJob job;
   job.sequence = seq;

@@ -17,6 +17,7 @@
 
 #include "acquire/acquire.h"
 #include "daemon/internal/journal.h"
+#include "daemon/internal/live_hooks.h"  // web: issue 18
 #include "daemon/internal/run_config.h"
 #include "daemon/internal/run_stats.h"
 #include "daemon/internal/volume_queue.h"
@@ -54,6 +55,8 @@ class LiveRunner {
   std::optional<std::string> set_seed(const std::array<float, 3>& seed_mm);
 
   const RunStats& stats() const { return stats_; }
+  /// web (issue 18): the live page's and systemd's callbacks; set before run().
+  void set_hooks(LiveHooks hooks) { hooks_ = std::move(hooks); }
   /// Appends to OUT/events.jsonl (thread-safe; failures are logged, not thrown).
   void event(const std::string& kind, nlohmann::json fields = nlohmann::json::object());
 
@@ -97,6 +100,7 @@ class LiveRunner {
   std::atomic<bool> fatal_{false};
   std::stop_source abort_;  // second signal: abort the volume in hand
   PipelineBuffers buffers_;  // the worker's smoothing buffers, reused from volume to volume
+  LiveHooks hooks_;          // web (issue 18)
 
   std::mutex seed_mutex_;
   std::optional<std::array<float, 3>> tracked_seed_mm_;
