@@ -5,6 +5,7 @@
 // the header first (read_data = 0); dimensions and the bytes on disk are checked before any voxel
 // buffer is allocated. A 4D file (a time series) loads its first frame (ReadResult::note says so).
 #include <nifti1_io.h>
+#include <zlib.h>
 
 #include <cmath>
 #include <cstdlib>
@@ -156,9 +157,31 @@ std::optional<VolumeIoError> check_size(const std::filesystem::path& path, const
   return std::nullopt;
 }
 
+// The checks nifticlib would otherwise print on stderr: a NIfTI-1 single-file header (sizeof_hdr
+// 348 in either byte order, magic "n+1") with 1..7 dimensions.
+std::optional<VolumeIoError> check_header_bytes(const std::filesystem::path& path) {
+  nifti_1_header h{};
+  gzFile in = gzopen(path.c_str(), "rb");  // reads uncompressed files as they are
+  if (!in) return io_error(Code::IoError, path, "cannot open for reading");
+  const int got = gzread(in, &h, sizeof h);
+  gzclose(in);
+  if (got != static_cast<int>(sizeof h))
+    return io_error(Code::BadHeader, path, "shorter than a NIfTI-1 header (348 bytes)");
+  const bool swapped = h.sizeof_hdr == 0x5c010000;
+  if ((h.sizeof_hdr != 348 && !swapped) || std::memcmp(h.magic, "n+1", 4) != 0)
+    return io_error(Code::UnknownFormat, path,
+                    "not a single-file NIfTI-1 image (sizeof_hdr, magic)");
+  short ndim = h.dim[0];
+  if (swapped) ndim = static_cast<short>(((ndim & 0xff) << 8) | ((ndim >> 8) & 0xff));
+  if (ndim < 1 || ndim > 7)
+    return io_error(Code::BadHeader, path, "dim[0] is " + std::to_string(ndim) + " (need 1..7)");
+  return std::nullopt;
+}
+
 }  // namespace
 
 VolumeReadResult read_nifti(const std::filesystem::path& path, const ReadOptions& options) {
+  if (auto err = check_header_bytes(path)) return {Volume{}, err};
   std::lock_guard<std::mutex> lock(nifti_mutex());
   nifti_set_debug_level(0);  // errors become our messages, not nifticlib's stderr lines
   NiftiPtr nim(nifti_image_read(path.c_str(), 0));
@@ -254,8 +277,10 @@ std::optional<VolumeIoError> write_nifti(const Volume& volume, const std::filesy
   std::filesystem::remove(path, ec);
   nifti_image_write(nim.get());
   nim->data = nullptr;
-  const auto size = data_file_size(path);  // nifti_image_write reports nothing: check the result
-  if (!size || *size < 348) return io_error(Code::IoError, path, "cannot write");
+  // nifti_image_write reports nothing: read the header back to know the file is there.
+  const NiftiPtr check(nifti_image_read(path.c_str(), 0));
+  if (!check || check->nx != d.x() || check->ny != d.y() || check->nz != d.z())
+    return io_error(Code::IoError, path, "cannot write");
   return std::nullopt;
 }
 
