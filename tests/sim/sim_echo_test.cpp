@@ -89,6 +89,17 @@ TEST(SimEcho, ZerosOutsideTheSectorAndNoneInsideIt) {
     EXPECT_EQ(outside_nonzero, 0u) << name;
     EXPECT_EQ(inside_zero, 0u) << name;
     EXPECT_EQ(truth_near_edge, 0u) << name << ": the target must lie well inside the sector";
+    for (float t : {1.0f, 3.0f}) {  // at the breathing extremes too
+      PhantomSpec moved = spec;
+      moved.time_s = t;
+      moved.speckle = 0.0f;
+      const Phantom q = make_phantom(moved);
+      std::size_t near_edge = 0;
+      for_each_voxel(moved, q, [&](std::size_t i, float, float sector, const Vec3f&) {
+        near_edge += q.truth.u8()[i] && sector < 2.0f;
+      });
+      EXPECT_EQ(near_edge, 0u) << name << " t " << t;
+    }
   }
 }
 
@@ -307,6 +318,13 @@ TEST(SimEcho, BadSpecsAndUris) {
   EXPECT_FLOAT_EQ(ok->spec.contrast, 0.4f);
   EXPECT_FLOAT_EQ(ok->spec.speckle, 1.0f);
   EXPECT_FALSE(parse_sim_uri("sim:lv?realism=photo"));
+  EXPECT_FALSE(parse_sim_uri("sim:lv?oblique=2"));
+  auto oblique = parse_sim_uri("torus?oblique=1&size=32");
+  ASSERT_TRUE(oblique);
+  const auto raw = make_stream_volume(*oblique, 0);
+  const volume::Mat3f d = oblique_direction();
+  EXPECT_FLOAT_EQ(raw.direction[3 * 1 + 2], d(2, 1));  // column-major: column 1, row 2
+  EXPECT_TRUE((d.transpose() * d).isIdentity(1e-5f));
   EXPECT_FALSE(parse_sim_uri("sim:lv?contrast=2"));
 }
 
