@@ -67,11 +67,14 @@ tl::expected<PhantomSourceOptions, AcquireError> parse_sim_uri(const std::string
     } else if (key == "seed") {
       if (x < 0 || x > 4294967295.0 || x != std::floor(x)) return invalid(uri, "seed must be a 32-bit unsigned integer");
       options.spec.seed = static_cast<std::uint32_t>(x);
+    } else if (key == "oblique") {
+      if (x != 0 && x != 1) return invalid(uri, "oblique must be 0 or 1");
+      options.spec.oblique = x == 1;
     } else if (key == "contrast") {
       if (!(x >= 0 && x <= 1)) return invalid(uri, "contrast must be in [0, 1]");
       options.spec.contrast = static_cast<float>(x);
     } else {
-      return invalid(uri, "unknown option '" + key + "' (rate, size, count, seed, contrast, realism)");
+      return invalid(uri, "unknown option '" + key + "' (rate, size, count, seed, contrast, realism, oblique)");
     }
   }
   return options;

@@ -210,6 +210,8 @@ int run_serve(const ServeArgs& args) {
     IgtlServeOptions options{args.igtl, args.rate_hz, args.count, args.igtl_header, args.igtl_device};
     return run_igtl_serve(options, [&feed](std::uint64_t sequence) { return feed.next(sequence); });
   }
+  if (args.oblique)  // the probe stream's header has no direction: it would be lost silently
+    throw std::invalid_argument("--oblique needs --igtl (the probe stream carries no direction)");
   Listener listener(args.listen);
   listener.start();
   std::mt19937 fault_rng(args.fault_seed);

@@ -89,6 +89,17 @@ TEST(SimEcho, ZerosOutsideTheSectorAndNoneInsideIt) {
     EXPECT_EQ(outside_nonzero, 0u) << name;
     EXPECT_EQ(inside_zero, 0u) << name;
     EXPECT_EQ(truth_near_edge, 0u) << name << ": the target must lie well inside the sector";
+    for (float t : {1.0f, 3.0f}) {  // at the breathing extremes too
+      PhantomSpec moved = spec;
+      moved.time_s = t;
+      moved.speckle = 0.0f;
+      const Phantom q = make_phantom(moved);
+      std::size_t near_edge = 0;
+      for_each_voxel(moved, q, [&](std::size_t i, float, float sector, const Vec3f&) {
+        near_edge += q.truth.u8()[i] && sector < 2.0f;
+      });
+      EXPECT_EQ(near_edge, 0u) << name << " t " << t;
+    }
   }
 }
 
@@ -224,6 +235,30 @@ TEST(SimEcho, NearFieldClutterAndCompensatedAttenuation) {
   EXPECT_GT(deep, 0.8 * mid);
 }
 
+TEST(SimEcho, NeedleShadowFallsAlongTheBeam) {
+  const PhantomSpec spec = echo_spec("cyst-needle", 48, 0.5f);
+  const Phantom p = make_phantom(spec);
+  const internal::Shape shape(spec, p.image.origin_mm());
+  const internal::Sector sector(spec, p.image.origin_mm());
+  const float radius_mm = shape.needle_at_time()->radius_mm;
+  double shadowed = 0, open = 0;
+  std::size_t ns = 0, no = 0;
+  for_each_voxel(spec, p, [&](std::size_t t, float sdf, float in_sector, const Vec3f& x) {
+    if (in_sector <= 1.0f || sdf < 3.0f || shape.needle_sdf_mm(x) < 3.0f * spec.spacing_mm.x())
+      return;
+    // Does the beam from the apex to x pass through the needle's core on its way?
+    const Vec3f apex = sector.apex_mm();
+    const float length = (x - apex).norm();
+    bool hidden = false;
+    for (float r = 0.0f; r < length && !hidden; r += 0.25f)
+      hidden = shape.needle_sdf_mm(apex + (x - apex) * (r / length)) < -0.5f * radius_mm;
+    (hidden ? shadowed : open) += p.image.u8()[t];
+    ++(hidden ? ns : no);
+  });
+  ASSERT_GT(ns, 100u);
+  EXPECT_LT(shadowed / ns, 0.6 * open / no);
+}
+
 // The speckle's lateral correlation length in voxels: the first lag where the autocorrelation
 // along x falls below 1/2, interpolated, over tissue at mid depth.
 double lateral_grain_vox(const Phantom& p) {
@@ -307,6 +342,13 @@ TEST(SimEcho, BadSpecsAndUris) {
   EXPECT_FLOAT_EQ(ok->spec.contrast, 0.4f);
   EXPECT_FLOAT_EQ(ok->spec.speckle, 1.0f);
   EXPECT_FALSE(parse_sim_uri("sim:lv?realism=photo"));
+  EXPECT_FALSE(parse_sim_uri("sim:lv?oblique=2"));
+  auto oblique = parse_sim_uri("torus?oblique=1&size=32");
+  ASSERT_TRUE(oblique);
+  const auto raw = make_stream_volume(*oblique, 0);
+  const volume::Mat3f d = oblique_direction();
+  EXPECT_FLOAT_EQ(raw.direction[3 * 1 + 2], d(2, 1));  // column-major: column 1, row 2
+  EXPECT_TRUE((d.transpose() * d).isIdentity(1e-5f));
   EXPECT_FALSE(parse_sim_uri("sim:lv?contrast=2"));
 }
 

@@ -250,7 +250,8 @@ TEST(ProbeSimIgtl, BadOptionsGiveOneLineAndNonZeroExit) {
        {std::string("serve --phantom torus --igtl 127.0.0.1"),
         std::string("serve --phantom torus --igtl 127.0.0.1:1 --listen tcp:127.0.0.1:2"),
         std::string("serve --phantom torus --igtl 127.0.0.1:18944 --igtl-header 3"),
-        std::string("serve --phantom torus --igtl 127.0.0.1:18944 --drop-every 2")}) {
+        std::string("serve --phantom torus --igtl 127.0.0.1:18944 --drop-every 2"),
+        std::string("serve --phantom torus --listen tcp:127.0.0.1:1 --oblique")}) {
     const std::string cmd = std::string(PROBE_SIM_EXE) + " " + args + " 2>&1";
     FILE* p = ::popen(cmd.c_str(), "r");
     ASSERT_NE(p, nullptr);
