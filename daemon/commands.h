@@ -12,4 +12,8 @@ void add_process_command(CLI::App& app, int& exit_code);
 /// `sonomeshd run --source SOURCE --out DIR ...` (daemon/run_command.cpp). Sets exit_code.
 void add_run_command(CLI::App& app, int& exit_code);
 
+/// `sonomeshd batch --manifest FILE.jsonl --out DIR [--jobs N] [--index I]`
+/// (daemon/batch_command.cpp). Sets exit_code.
+void add_batch_command(CLI::App& app, int& exit_code);
+
 }  // namespace sonomesh::daemon

@@ -10,6 +10,7 @@ int main(int argc, char** argv) {
   int exit_code = 0;
   sonomesh::daemon::add_process_command(app, exit_code);
   sonomesh::daemon::add_run_command(app, exit_code);
+  sonomesh::daemon::add_batch_command(app, exit_code);
   try {
     app.parse(argc, argv);
   } catch (const CLI::CallForHelp& e) {

@@ -5,6 +5,10 @@
 #include <sstream>
 #include <vector>
 
+#ifndef SONOMESH_VERSION
+#define SONOMESH_VERSION "unknown"
+#endif
+
 namespace sonomesh::daemon {
 
 namespace {
@@ -20,6 +24,20 @@ std::string prom_number(double v) {
   out.precision(9);
   out << v;
   return out.str();
+}
+
+// Prometheus label value: backslash, double quote and newline escaped.
+std::string prom_label(const std::string& v) {
+  std::string out;
+  for (char c : v) {
+    if (c == '\\' || c == '"') out.push_back('\\');
+    if (c == '\n') {
+      out += "\\n";
+      continue;
+    }
+    out.push_back(c);
+  }
+  return out;
 }
 
 double quantile_of(std::vector<double> values, double q) {
@@ -167,6 +185,14 @@ nlohmann::json RunStats::status_json() const {
 std::string RunStats::prometheus_text() const {
   std::lock_guard lock(mutex_);
   std::ostringstream out;
+  // *_info: constant 1 with the facts as labels (Prometheus naming conventions).
+  out << "# HELP sonomesh_build_info The running sonomeshd's version.\n"
+      << "# TYPE sonomesh_build_info gauge\n"
+      << "sonomesh_build_info{version=\"" << prom_label(SONOMESH_VERSION) << "\"} 1\n"
+      << "# HELP sonomesh_source_info The probe source this daemon reads.\n"
+      << "# TYPE sonomesh_source_info gauge\n"
+      << "sonomesh_source_info{uri=\"" << prom_label(source_) << "\",live=\""
+      << (live_ ? "true" : "false") << "\"} 1\n";
   out << "# HELP sonomesh_volumes_total Volumes by journal status (one per sequence number).\n"
       << "# TYPE sonomesh_volumes_total counter\n";
   for (JournalStatus s : kStatuses) {

@@ -83,6 +83,14 @@ TEST(LiveEvents, OneEventPerJournalLineInOrderAndResumesAfterLastEventId) {
       wait_until([&] { return journal_lines(dir / "out" / "journal.jsonl").size() >= 8; }, 60s));
   const std::vector<SseEvent> resumed = read_events(port, 5, first[1].id);
   ASSERT_EQ(resumed.size(), 5u);
+  // The *_info metrics (Prometheus naming conventions) carry the version and the source.
+  httplib::Client client("127.0.0.1", port);
+  const auto metrics = client.Get("/metrics");
+  ASSERT_TRUE(metrics);
+  EXPECT_NE(metrics->body.find("sonomesh_build_info{version=\""), std::string::npos);
+  EXPECT_NE(metrics->body.find(
+                "sonomesh_source_info{uri=\"sim:sphere?rate=10&size=48\",live=\"true\"} 1"),
+            std::string::npos);
   daemon.signal(SIGINT);
   ASSERT_EQ(daemon.wait(30s), 0) << daemon.stderr_text();
 
