@@ -97,7 +97,7 @@ trap 'rm -f "$tmp"' EXIT
     for speckle in $speckles; do
       for phantom in $phantoms; do
         "$accuracy" --phantom "$phantom" --size "$size" --speckle "$speckle" --repeat "$repeat" \
-          || echo "| $phantom | $size | $speckle | | accuracy_report failed (exit $?) | | | | | | | | | | |"
+          || echo "| $phantom | $size | $speckle | | accuracy_report failed (exit $?) | | | | | | | | | | | | |"
       done
     done
   done

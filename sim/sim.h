@@ -19,9 +19,9 @@ using volume::Vec3i;
 ///   along z. The original model; its bytes do not change.
 /// - Echo: what a 3D echo probe shows (sim/internal/echo.h): a pyramidal sector from an apex above
 ///   the volume with zeros outside it, fully developed speckle of a set grain in tissue and blood
-///   pool alike (the cavity's echo is (1 - contrast) of the tissue's, not black), near-field clutter,
-///   wall dropout where the wall runs along the beam and a specular echo where it faces it,
-///   attenuation along the beam with an imperfect time-gain compensation, electronic noise, the
+///   pool alike (the cavity's echo is (1 - contrast) of the tissue's, not black), near-field
+///   clutter, wall dropout where the wall runs along the beam and a specular echo where it faces
+///   it, attenuation along the beam with an imperfect time-gain compensation, electronic noise, the
 ///   needle's shadow along the beam, and for the LV a brighter myocardium and a valve-plane echo.
 enum class Realism { Simple, Echo };
 
@@ -34,14 +34,14 @@ struct PhantomSpec {
   // sphere | ellipsoid | torus | cyst-needle | double-torus | lv (an apical view's left ventricle:
   // elongated, trabeculated uneven wall, apex towards the probe, base closed by a valve plane)
   std::string phantom = "sphere";
-  int size_vox = 64;               // edge of the cubic volume, voxels
+  int size_vox = 64;  // edge of the cubic volume, voxels
   Vec3f spacing_mm{0.5f, 0.5f, 0.5f};
-  float contrast = 0.7f;           // 1 - target_mean / tissue_mean: 0 invisible, 1 black target
-  float speckle = 0.5f;            // speckle strength, 0 = none
+  float contrast = 0.7f;               // 1 - target_mean / tissue_mean: 0 invisible, 1 black target
+  float speckle = 0.5f;                // speckle strength, 0 = none
   float attenuation_db_per_cm = 0.5f;  // attenuation with depth (z) in dB/cm (round trip)
-  std::uint32_t seed = 1;          // random seed: same seed, same bytes
-  float time_s = 0.0f;             // breathing phase for streamed phantoms: moves/deforms a little
-  Vec3f axis{0.0f, 0.0f, 1.0f};    // orientation of the torus / ellipsoid / cyst major axis
+  std::uint32_t seed = 1;              // random seed: same seed, same bytes
+  float time_s = 0.0f;           // breathing phase for streamed phantoms: moves/deforms a little
+  Vec3f axis{0.0f, 0.0f, 1.0f};  // orientation of the torus / ellipsoid / cyst major axis
   // Direction the biopsy needle points (cyst-needle only), from entry towards its tip. Default:
   // 30 degrees below lateral, as a needle guided into the beam; a needle along the beam (z) would
   // cast its shadow into itself and show nothing a probe could see.
@@ -67,7 +67,7 @@ struct Phantom {
   volume::Volume image;  // UInt8, the ultrasound-like image
   volume::Volume truth;  // UInt8 labels on the same grid, inside the target = 1
   std::string name;
-  int genus = 0;         // topology of the target surface
+  int genus = 0;                     // topology of the target surface
   Vec3i seed_index = Vec3i::Zero();  // a voxel well inside the target
   Vec3f seed_mm = Vec3f::Zero();     // the same point in mm, grid frame (image.index_to_mm)
 };
@@ -80,19 +80,21 @@ const std::vector<std::string>& phantom_names();
 /// Grid: size_vox^3 voxels, origin 0 (z = 0 is the transducer face, the beam runs along +z).
 /// Shapes are sized relative to the volume, centred, and keep >= 3 voxels from the border at any
 /// time_s; thin parts (torus tube, needle tunnel) are resolved so the truth has exactly the stated
-/// genus for size_vox >= 48 (tested 48..256, any axis). Image: tissue ~120 grey levels at mid depth,
-/// target (1 - contrast) times that, Rayleigh speckle, depth attenuation, and for cyst-needle a
-/// bright needle with an acoustic shadow below it. time_s: breathing with a 4 s period (a shift of
-/// ~0.08 of the half extent, +-3 % scale), the speckle stays put. The first call for a new
-/// (seed, size) builds the speckle field; later calls reuse it (one field is cached).
-/// seed_index is the deepest target voxel (largest distance to the boundary, so away from the needle).
+/// genus for size_vox >= 48 (tested 48..256, any axis). Image: tissue ~120 grey levels at mid
+/// depth, target (1 - contrast) times that, Rayleigh speckle, depth attenuation, and for
+/// cyst-needle a bright needle with an acoustic shadow below it. time_s: breathing with a 4 s
+/// period (a shift of ~0.08 of the half extent, +-3 % scale), the speckle stays put. The first call
+/// for a new (seed, size) builds the speckle field; later calls reuse it (one field is cached).
+/// seed_index is the deepest target voxel (largest distance to the boundary, so away from the
+/// needle).
 /// @throws std::invalid_argument naming the field for an unknown phantom, a size outside 16..512,
 /// non-positive spacing, contrast/speckle outside [0, 1], speckle_mm outside [0.1, 5] (echo), or a
 /// zero axis. In echo mode the truth is the same as in simple mode (same spec, same labels).
 Phantom make_phantom(const PhantomSpec& spec);
 
 /// The phantom's image as a probe record (sequence and timestamp as given; direction and origin
-/// from the volume). UInt8 and UInt16 volumes only. @throws std::invalid_argument for a Float32 volume.
+/// from the volume). UInt8 and UInt16 volumes only. @throws std::invalid_argument for a Float32
+/// volume.
 acquire::RawVolume to_raw(const volume::Volume& image, std::uint64_t sequence,
                           std::uint64_t timestamp_ns);
 

@@ -18,9 +18,9 @@ using internal::Shape;
 // Image model constants. Tissue sits at ~120 grey levels at mid depth: headroom for speckle peaks
 // and a needle that saturates near 255.
 constexpr float kTissueLevel = 120.0f;
-constexpr float kNeedleEcho = 2.4f;       // needle brightness relative to tissue (saturates)
+constexpr float kNeedleEcho = 2.4f;         // needle brightness relative to tissue (saturates)
 constexpr float kNeedleSpeckleKeep = 0.3f;  // a specular needle is less speckled than tissue
-constexpr float kShadowFloor = 0.35f;     // scatter fills the shadow; the cyst stays visible in it
+constexpr float kShadowFloor = 0.35f;  // scatter fills the shadow; the cyst stays visible in it
 
 float smoothstep01(float x) {
   x = std::clamp(x, 0.0f, 1.0f);
@@ -29,8 +29,10 @@ float smoothstep01(float x) {
 
 void validate(const PhantomSpec& spec) {
   auto bad = [](const std::string& what) { throw std::invalid_argument("PhantomSpec." + what); };
-  if (spec.size_vox < 16) bad("size_vox must be at least 16 (got " + std::to_string(spec.size_vox) + ")");
-  if (spec.size_vox > 512) bad("size_vox must be at most 512 (got " + std::to_string(spec.size_vox) + ")");
+  if (spec.size_vox < 16)
+    bad("size_vox must be at least 16 (got " + std::to_string(spec.size_vox) + ")");
+  if (spec.size_vox > 512)
+    bad("size_vox must be at most 512 (got " + std::to_string(spec.size_vox) + ")");
   if (!spec.spacing_mm.allFinite() || !(spec.spacing_mm.array() > 0.0f).all())
     bad("spacing_mm must be positive");
   if (!(spec.contrast >= 0.0f && spec.contrast <= 1.0f)) bad("contrast must be in [0, 1]");
@@ -68,14 +70,15 @@ Vec3i deepest_voxel(const volume::Volume& truth) {
     throw std::invalid_argument("PhantomSpec: the target has no voxel at this size/spacing");
   const int nx = sub_dims.x(), ny = sub_dims.y();
   return Vec3i(static_cast<int>(best % nx), static_cast<int>((best / nx) % ny),
-               static_cast<int>(best / (static_cast<std::size_t>(nx) * ny))) * stride;
+               static_cast<int>(best / (static_cast<std::size_t>(nx) * ny))) *
+         stride;
 }
 
 }  // namespace
 
 const std::vector<std::string>& phantom_names() {
-  static const std::vector<std::string> names{"sphere", "ellipsoid", "torus", "cyst-needle",
-                                              "double-torus", "lv"};
+  static const std::vector<std::string> names{"sphere",      "ellipsoid",    "torus",
+                                              "cyst-needle", "double-torus", "lv"};
   return names;
 }
 
@@ -89,7 +92,8 @@ const char* to_string(Realism realism) { return realism == Realism::Echo ? "echo
 
 volume::Mat3f oblique_direction() {
   const float ax = 30.0f * 3.14159265f / 180.0f, az = 20.0f * 3.14159265f / 180.0f;
-  return (Eigen::AngleAxisf(az, Vec3f::UnitZ()) * Eigen::AngleAxisf(ax, Vec3f::UnitX())).toRotationMatrix();
+  return (Eigen::AngleAxisf(az, Vec3f::UnitZ()) * Eigen::AngleAxisf(ax, Vec3f::UnitX()))
+      .toRotationMatrix();
 }
 
 PhantomSpec with_echo_realism(PhantomSpec spec) {
@@ -136,7 +140,8 @@ void render_simple(const PhantomSpec& spec, const Shape& shape, Phantom& out) {
       const float y_mm = origin_mm.y() + h.y() * static_cast<float>(j);
       for (int k = 0; k < nz; ++k) {
         const float z_mm = origin_mm.z() + h.z() * static_cast<float>(k);
-        const std::size_t row = static_cast<std::size_t>(k) * slice + static_cast<std::size_t>(j) * nx;
+        const std::size_t row =
+            static_cast<std::size_t>(k) * slice + static_cast<std::size_t>(j) * nx;
         for (int i = 0; i < nx; ++i) {
           const std::size_t idx = row + i;
           const Vec3f p(origin_mm.x() + h.x() * static_cast<float>(i), y_mm, z_mm);
@@ -154,7 +159,8 @@ void render_simple(const PhantomSpec& spec, const Shape& shape, Phantom& out) {
             shadow = std::max(trans[i], kShadowFloor);
             if (wn > 0.0f) trans[i] *= std::exp(-needle_absorb_per_mm * wn * h.z());
           }
-          const float grain = speckle ? (1.0f - speckle_strength + speckle_strength * (*speckle)[idx]) : 1.0f;
+          const float grain =
+              speckle ? (1.0f - speckle_strength + speckle_strength * (*speckle)[idx]) : 1.0f;
           const float v = att[k] * echo * grain * shadow;
           img[idx] = static_cast<std::uint8_t>(std::min(v + 0.5f, 255.0f));  // v >= 0: rounds
         }

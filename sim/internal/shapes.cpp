@@ -12,7 +12,7 @@ constexpr float kPi = 3.14159265358979f;
 constexpr float kBreathingPeriodS = 4.0f;
 // Breathing: a few voxels of translation (relative to R, so ~2.5 voxels at 64^3) and a few
 // percent of scale. Both vanish at t = 0 so time_s = 0 is the rest shape.
-constexpr float kBreathingShift = 0.08f;   // of R
+constexpr float kBreathingShift = 0.08f;  // of R
 constexpr float kBreathingScale = 0.03f;
 
 // Shape sizes, all relative to R (half extent). Chosen so the thin parts are >= 4-5 voxels at 64^3
@@ -71,15 +71,19 @@ int shape_genus(ShapeKind kind) {
   switch (kind) {
     case ShapeKind::Sphere:
     case ShapeKind::Ellipsoid:
-    case ShapeKind::Lv: return 0;
+    case ShapeKind::Lv:
+      return 0;
     case ShapeKind::Torus:
-    case ShapeKind::CystNeedle: return 1;
-    case ShapeKind::DoubleTorus: return 2;
+    case ShapeKind::CystNeedle:
+      return 1;
+    case ShapeKind::DoubleTorus:
+      return 2;
   }
   return 0;
 }
 
-Shape::Shape(const PhantomSpec& spec, const Vec3f& origin_mm) : kind_(parse_shape_kind(spec.phantom)) {
+Shape::Shape(const PhantomSpec& spec, const Vec3f& origin_mm)
+    : kind_(parse_shape_kind(spec.phantom)) {
   const Vec3f half = spec.spacing_mm * (static_cast<float>(spec.size_vox - 1) * 0.5f);
   centre_mm_ = origin_mm + half;
   half_extent_mm_ = half.minCoeff();
@@ -92,12 +96,24 @@ Shape::Shape(const PhantomSpec& spec, const Vec3f& origin_mm) : kind_(parse_shap
   scale_ = 1.0f + kBreathingScale * std::sin(phase);
 
   switch (kind_) {  // radius of a ball around the centre containing the rest shape, of R
-    case ShapeKind::Sphere: bound_ = kSphereRadius; break;
-    case ShapeKind::Ellipsoid: bound_ = kEllipsoidAxes[2]; break;
-    case ShapeKind::Torus: bound_ = kTorusMajor + kTorusTube; break;
-    case ShapeKind::DoubleTorus: bound_ = kDoubleOffset + kDoubleMajor + kDoubleTube; break;
-    case ShapeKind::CystNeedle: bound_ = kCystAxes[2]; break;
-    case ShapeKind::Lv: bound_ = kLvAxes[2] + kLvBulge; break;
+    case ShapeKind::Sphere:
+      bound_ = kSphereRadius;
+      break;
+    case ShapeKind::Ellipsoid:
+      bound_ = kEllipsoidAxes[2];
+      break;
+    case ShapeKind::Torus:
+      bound_ = kTorusMajor + kTorusTube;
+      break;
+    case ShapeKind::DoubleTorus:
+      bound_ = kDoubleOffset + kDoubleMajor + kDoubleTube;
+      break;
+    case ShapeKind::CystNeedle:
+      bound_ = kCystAxes[2];
+      break;
+    case ShapeKind::Lv:
+      bound_ = kLvAxes[2] + kLvBulge;
+      break;
   }
   w_ = unit_or_throw(spec.axis, "axis");
   const Vec3f helper = std::abs(w_.x()) < 0.9f ? Vec3f::UnitX() : Vec3f::UnitY();
@@ -128,22 +144,25 @@ float Shape::rest_target_sdf(const Vec3f& q) const {
   if (r > (bound_ + 0.1f) * R) return r - bound_ * R;
   const float a = q.dot(u_), b = q.dot(v_), c = q.dot(w_);
   switch (kind_) {
-    case ShapeKind::Sphere: return q.norm() - kSphereRadius * R;
+    case ShapeKind::Sphere:
+      return q.norm() - kSphereRadius * R;
     case ShapeKind::Ellipsoid:
-      return ellipsoid_sdf(Vec3f(a, b, c), Vec3f(kEllipsoidAxes[0], kEllipsoidAxes[1],
-                                                 kEllipsoidAxes[2]) * R);
-    case ShapeKind::Torus: return torus_sdf(a, b, c, kTorusMajor * R, kTorusTube * R);
+      return ellipsoid_sdf(Vec3f(a, b, c),
+                           Vec3f(kEllipsoidAxes[0], kEllipsoidAxes[1], kEllipsoidAxes[2]) * R);
+    case ShapeKind::Torus:
+      return torus_sdf(a, b, c, kTorusMajor * R, kTorusTube * R);
     case ShapeKind::DoubleTorus: {
       const float d = kDoubleOffset * R;
       return std::min(torus_sdf(a + d, b, c, kDoubleMajor * R, kDoubleTube * R),
                       torus_sdf(a - d, b, c, kDoubleMajor * R, kDoubleTube * R));
     }
     case ShapeKind::CystNeedle: {
-      const float cyst = ellipsoid_sdf(Vec3f(a, b, c), Vec3f(kCystAxes[0], kCystAxes[1],
-                                                             kCystAxes[2]) * R);
+      const float cyst =
+          ellipsoid_sdf(Vec3f(a, b, c), Vec3f(kCystAxes[0], kCystAxes[1], kCystAxes[2]) * R);
       return std::max(cyst, -rest_needle_sdf(q));  // the cyst minus the needle
     }
-    case ShapeKind::Lv: return rest_lv_sdf(a, b, c);
+    case ShapeKind::Lv:
+      return rest_lv_sdf(a, b, c);
   }
   return std::numeric_limits<float>::max();
 }
@@ -154,7 +173,8 @@ float Shape::rest_lv_sdf(float a, float b, float c) const {
   const float theta = std::atan2(b, a);
   const float h = c / R;  // -0.7 apex .. +0.5 valve
   // Fade: full depth over the mid cavity, none at the apex (h < -0.45) or the valve (h > 0.42).
-  const float fade = std::clamp((h + 0.45f) / 0.25f, 0.0f, 1.0f) * std::clamp((0.42f - h) / 0.15f, 0.0f, 1.0f);
+  const float fade =
+      std::clamp((h + 0.45f) / 0.25f, 0.0f, 1.0f) * std::clamp((0.42f - h) / 0.15f, 0.0f, 1.0f);
   const float ridge = 0.5f + 0.5f * std::sin(kLvTrabCount * theta + 2.5f * h);
   const float bulge = std::sin(2.0f * theta + 1.3f) * std::cos(3.0f * h);  // the uneven wall
   const float wall = body + R * (fade * kLvTrabDepth * ridge * ridge + kLvBulge * bulge);

@@ -63,10 +63,10 @@ class Shape {
   ShapeKind kind_;
   Vec3f centre_mm_;
   float half_extent_mm_;
-  Vec3f shift_mm_;  // breathing translation at spec.time_s
-  float scale_;     // breathing scale at spec.time_s
-  float bound_ = 1; // the rest target lies within this radius (of R) around the centre
-  Vec3f u_, v_, w_; // local frame, w = spec.axis
+  Vec3f shift_mm_;   // breathing translation at spec.time_s
+  float scale_;      // breathing scale at spec.time_s
+  float bound_ = 1;  // the rest target lies within this radius (of R) around the centre
+  Vec3f u_, v_, w_;  // local frame, w = spec.axis
   std::optional<Needle> needle_;  // rest pose, relative to the centre
 };
 

@@ -32,8 +32,8 @@ void GaussianPairs::next(float& a, float& b) {
   // the speckle field cheap. Tails reach ~5.8 sigma, plenty for an image quantised to 8 bits.
   constexpr float kTwoPi = 6.2831853f;
   const std::uint64_t bits = next_bits();
-  const float u1 = (static_cast<float>(bits >> 40) + 1.0f) * 0x1.0p-24f;                // (0, 1]
-  const float u2 = static_cast<float>((bits >> 16) & 0xFFFFFFu) * 0x1.0p-24f;          // [0, 1)
+  const float u1 = (static_cast<float>(bits >> 40) + 1.0f) * 0x1.0p-24f;       // (0, 1]
+  const float u2 = static_cast<float>((bits >> 16) & 0xFFFFFFu) * 0x1.0p-24f;  // [0, 1)
   const float r = std::sqrt(-2.0f * std::log(u1));
   a = r * std::cos(kTwoPi * u2);
   b = r * std::sin(kTwoPi * u2);
@@ -83,13 +83,16 @@ std::vector<float> smooth_valid(const std::vector<float>& in, volume::Vec3i& dim
     for (int k = k0; k < k1; ++k)
       for (int j = 0; j < ny; ++j) {
         // Input index of output (0, j, k): the axis coordinate is offset by kRadius, then back.
-        const std::size_t in_row = static_cast<std::size_t>(k) * in_stride[2] + static_cast<std::size_t>(j) * in_stride[1];
+        const std::size_t in_row =
+            static_cast<std::size_t>(k) * in_stride[2] + static_cast<std::size_t>(j) * in_stride[1];
         const std::size_t out_row = (static_cast<std::size_t>(k) * ny + j) * nx;
         for (int i = 0; i < nx; ++i) {
-          const std::size_t centre = in_row + static_cast<std::size_t>(i) * in_stride[0] + kRadius * in_stride[axis];
+          const std::size_t centre =
+              in_row + static_cast<std::size_t>(i) * in_stride[0] + kRadius * in_stride[axis];
           float re = 0.0f, im = 0.0f;
           for (int t = -kRadius; t <= kRadius; ++t) {
-            const std::size_t src = centre + static_cast<std::ptrdiff_t>(t) * static_cast<std::ptrdiff_t>(in_stride[axis]);
+            const std::size_t src = centre + static_cast<std::ptrdiff_t>(t) *
+                                                 static_cast<std::ptrdiff_t>(in_stride[axis]);
             re += w[t + kRadius] * in[2 * src];
             im += w[t + kRadius] * in[2 * src + 1];
           }
@@ -115,7 +118,8 @@ std::shared_ptr<const std::vector<float>> build_field(std::uint32_t seed, const 
   // One generator per padded z slice, seeded from (seed, k): the same bytes for any thread count.
   parallel_chunks(0, padded.z(), [&](int k0, int k1) {
     for (int k = k0; k < k1; ++k) {
-      GaussianPairs gauss(mix64(static_cast<std::uint64_t>(seed) << 32) ^ static_cast<std::uint64_t>(k));
+      GaussianPairs gauss(mix64(static_cast<std::uint64_t>(seed) << 32) ^
+                          static_cast<std::uint64_t>(k));
       float* p = a.data() + 2 * slice * k;
       for (std::size_t t = 0; t < slice; ++t) gauss.next(p[2 * t], p[2 * t + 1]);
     }
@@ -138,7 +142,8 @@ std::shared_ptr<const std::vector<float>> build_field(std::uint32_t seed, const 
 
 }  // namespace
 
-std::shared_ptr<const std::vector<float>> speckle_field(std::uint32_t seed, const volume::Vec3i& dims,
+std::shared_ptr<const std::vector<float>> speckle_field(std::uint32_t seed,
+                                                        const volume::Vec3i& dims,
                                                         const Vec3f& sigma_vox) {
   // Two fields are kept: a simple-mode and an echo-mode stream alternate between at most two.
   struct Entry {

@@ -37,6 +37,7 @@ inline const Vec3f kDefaultSpeckleSigmaVox{1.0f, 1.0f, 0.6f};
 /// whatever the thread count. The two most recent fields are cached, because a streamed series
 /// asks for the same one at every frame.
 std::shared_ptr<const std::vector<float>> speckle_field(
-    std::uint32_t seed, const volume::Vec3i& dims, const Vec3f& sigma_vox = kDefaultSpeckleSigmaVox);
+    std::uint32_t seed, const volume::Vec3i& dims,
+    const Vec3f& sigma_vox = kDefaultSpeckleSigmaVox);
 
 }  // namespace sonomesh::sim::internal
