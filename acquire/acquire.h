@@ -11,11 +11,12 @@
 #include <cstdint>
 #include <filesystem>
 #include <functional>
+#include <map>
 #include <memory>
 #include <optional>
 #include <string>
-
 #include <tl/expected.hpp>
+#include <vector>
 
 #include "acquire/raw_volume.h"
 
@@ -23,12 +24,12 @@ namespace sonomesh::acquire {
 
 struct AcquireError {
   enum class Code {
-    Timeout,          // nothing arrived within the timeout (also: next() was interrupted)
-    Disconnected,     // the link dropped; the source reconnects with backoff
-    BadRecord,        // a record was dropped (corrupt, refused); sequence set if its header was intact
-    Lost,             // sequence gap: `count` volumes from `sequence` on never arrived
-    Incomplete,       // a record was cut short (link dropped / file ended mid-record)
-    EndOfStream,      // clean end: end-of-stream record or end of a recording
+    Timeout,       // nothing arrived within the timeout (also: next() was interrupted)
+    Disconnected,  // the link dropped; the source reconnects with backoff
+    BadRecord,     // a record was dropped (corrupt, refused); sequence set if its header was intact
+    Lost,          // sequence gap: `count` volumes from `sequence` on never arrived
+    Incomplete,    // a record was cut short (link dropped / file ended mid-record)
+    EndOfStream,   // clean end: end-of-stream record or end of a recording
     InvalidArgument,  // bad URI / option
     NotFound,         // file, socket or device does not exist / nobody listening
     IoError           // anything else the OS reported
@@ -48,11 +49,11 @@ std::string to_string(const AcquireError& error);
 struct SourceOptions {
   std::array<int, 3> max_dims{1024, 1024, 1024};  // refuse larger volumes before allocating
   std::uint64_t max_payload_bytes = 1ull << 30;
-  double rate_hz = 0;            // replay pacing: 0 = recorded timestamps (.usv) / unpaced (dir);
-                                 // >0 = fixed rate
-  bool replay_blocking = true;   // true: replay is not live (live() false, daemon processes all)
-  int v4l2_slices = 0;           // untagged V4L2: frames per volume (0 = tagged mode)
-  std::string record_path;       // non-empty: tee every good volume to this .usv file
+  double rate_hz = 0;           // replay pacing: 0 = recorded timestamps (.usv) / unpaced (dir);
+                                // >0 = fixed rate
+  bool replay_blocking = true;  // true: replay is not live (live() false, daemon processes all)
+  int v4l2_slices = 0;          // untagged V4L2: frames per volume (0 = tagged mode)
+  std::string record_path;      // non-empty: tee every good volume to this .usv file
   std::chrono::milliseconds connect_timeout{1000};  // socket connect, per attempt
 };
 
@@ -75,14 +76,52 @@ class Source {
   virtual void interrupt() = 0;
 };
 
-/// Opens a source:
+/// A source URI split once, for every scheme: "SCHEME:BODY[?KEY=VALUE&KEY=VALUE]".
+/// No percent-decoding: keys and values are plain words, paths and host names.
+struct SourceUri {
+  std::string text;    // the whole URI as given
+  std::string scheme;  // before the first ':'
+  std::string body;    // between the scheme's ':' and the first '?'
+  std::map<std::string, std::string> query;
+};
+
+/// Splits `uri`. InvalidArgument (naming the URI) without a scheme, or with a query key that is
+/// empty or given twice.
+tl::expected<SourceUri, AcquireError> parse_source_uri(const std::string& uri);
+
+/// InvalidArgument naming the first query key of `uri` that is not in `allowed`, if any.
+std::optional<AcquireError> refuse_unknown_keys(const SourceUri& uri,
+                                                const std::vector<std::string>& allowed);
+
+using SourceOpener = std::function<tl::expected<std::unique_ptr<Source>, AcquireError>(
+    const SourceUri& uri, const SourceOptions& options)>;
+
+/// One entry of the scheme table open_source() dispatches through.
+struct SourceScheme {
+  std::string name;     // "tcp"
+  std::string usage;    // "tcp:HOST:PORT", for error messages and --help
+  bool device = false;  // a probe or server that may come up later: a caller may wait for it
+  SourceOpener open;
+};
+
+/// Adds a scheme or replaces the one of the same name (the application adds those acquire
+/// cannot build itself: sonomeshd adds sim: and replay with its volume file reader).
+/// Thread-safe.
+void register_source_scheme(SourceScheme scheme);
+/// The registered scheme of that name, if any. Thread-safe.
+std::optional<SourceScheme> find_source_scheme(const std::string& name);
+/// Every registered scheme's usage line, sorted by name.
+std::vector<std::string> source_scheme_usages();
+
+/// Opens a source through the scheme table. acquire registers:
 ///   unix:PATH, tcp:HOST:PORT          probe stream over a socket (connects now; fails if nobody
 ///                                     listens; reconnects with backoff after a drop)
 ///   replay:FILE.usv[?rate=HZ]         a recorded probe stream, paced (not live)
-///   replay:DIR[?rate=HZ]              .nrrd/.nhdr/.mha/.mhd files sorted by name, sequence = index
-///   replay:FILE.nrrd (...)            one volume file, then end of stream
+///   replay:DIR[?rate=HZ]              volume files sorted by name, sequence = index (needs the
+///   replay:FILE.nrrd (...)            reader an application registers: replay_opener())
 ///   usb:VID:PID[/SERIAL]              USB bulk probe (hex VID/PID)
-///   v4l2:/dev/videoN[?slices=N]       frame grabber probe
+///   v4l2:/dev/videoN[?slices=N&format=grey|y16]  frame grabber probe
+///   igtl:HOST:PORT[?device=NAME]      IMAGE messages from an OpenIGTLink server (PlusServer)
 /// With options.record_path set, the source is wrapped by tee_to_recording().
 tl::expected<std::unique_ptr<Source>, AcquireError> open_source(const std::string& uri,
                                                                 const SourceOptions& options = {});
@@ -93,13 +132,20 @@ tl::expected<std::unique_ptr<Source>, AcquireError> open_source(const std::strin
 tl::expected<std::unique_ptr<Source>, AcquireError> tee_to_recording(
     std::unique_ptr<Source> inner, const std::filesystem::path& path);
 
-/// Reads one volume file (NRRD / MetaImage) into a RawVolume. acquire does not depend on volume/
-/// (dependencies point one way), so directory replay uses a reader the application registers:
-/// sonomeshd registers one built on volume::read_volume. Without one, replay of image files
-/// fails with InvalidArgument.
+/// Reads one volume file into a RawVolume; a reader that decodes into its own type hands it over
+/// in RawVolume::decoded instead of voxel bytes (no byte round trip).
 using VolumeFileReader =
     std::function<tl::expected<RawVolume, AcquireError>(const std::filesystem::path&)>;
-/// Registers (or, with an empty function, clears) the reader. Thread-safe.
-void set_volume_file_reader(VolumeFileReader reader);
+
+/// The volume files replay can read: acquire does not depend on volume/ (dependencies point one
+/// way), so the application supplies the reader and the extensions it reads.
+struct VolumeFiles {
+  std::vector<std::string> extensions;  // lower case, with the dot: ".nrrd", ".nii.gz"
+  VolumeFileReader read;
+};
+
+/// The replay: opener: .usv recordings always; directories and single files with one of
+/// `files.extensions` through `files.read`. acquire registers replay_opener({}).
+SourceOpener replay_opener(VolumeFiles files);
 
 }  // namespace sonomesh::acquire

@@ -13,10 +13,9 @@
 #include <deque>
 #include <optional>
 #include <string>
+#include <tl/expected.hpp>
 #include <variant>
 #include <vector>
-
-#include <tl/expected.hpp>
 
 #include "acquire/acquire.h"
 #include "acquire/raw_volume.h"
@@ -75,12 +74,12 @@ struct EndOfStream {
 };
 
 enum class DropReason {
-  Garbage,              // bytes that do not start a record (bad magic); skipped up to the next magic
-  HeaderCrc,            // header CRC mismatch: nothing in the header is trusted
-  PayloadCrc,           // payload CRC mismatch
-  Truncated,            // record cut short (end of input, or the next record starts inside it)
-  OversizeDims,         // dims or payload above the configured limits
-  ZeroDims,             // a volume with a zero dimension
+  Garbage,       // bytes that do not start a record (bad magic); skipped up to the next magic
+  HeaderCrc,     // header CRC mismatch: nothing in the header is trusted
+  PayloadCrc,    // payload CRC mismatch
+  Truncated,     // record cut short (end of input, or the next record starts inside it)
+  OversizeDims,  // dims or payload above the configured limits
+  ZeroDims,      // a volume with a zero dimension
   PayloadSizeMismatch,  // payload_bytes != nx*ny*nz*bytes per voxel (or != 0 for heartbeat/EOS)
   BadVersion,           // version != 1
   BadKind,              // kind not 1..3
@@ -130,8 +129,8 @@ class StreamParser {
   std::vector<std::uint8_t> buffer_;
   std::size_t pos_ = 0;
   std::optional<DroppedRecord> pending_garbage_;  // garbage run not yet ended by a good header
-  bool silent_skip_ = false;     // skipping the rest of an already reported record
-  std::size_t scanned_to_ = 0;   // lookahead inside a waiting record's payload (absolute offset)
+  bool silent_skip_ = false;                      // skipping the rest of an already reported record
+  std::size_t scanned_to_ = 0;  // lookahead inside a waiting record's payload (absolute offset)
   std::deque<ParserEvent> ready_;
 };
 

@@ -109,7 +109,6 @@ int run_daemon(const RunFlags& flags) {
   pthread_sigmask(SIG_BLOCK, &signals, nullptr);
   ::signal(SIGPIPE, SIG_IGN);  // a client closing its socket is not a reason to die
 
-  register_volume_file_reader();
   OpenedSource opened = open_run_source(config);
   if (opened.fatal_error) {
     std::fprintf(stderr, "sonomeshd run: %s\n", opened.fatal_error->c_str());

@@ -149,7 +149,8 @@ tl::expected<std::vector<std::uint8_t>, AcquireError> encode_volume_record(const
   return out;
 }
 
-std::vector<std::uint8_t> encode_heartbeat(std::uint64_t next_sequence, std::uint64_t timestamp_ns) {
+std::vector<std::uint8_t> encode_heartbeat(std::uint64_t next_sequence,
+                                           std::uint64_t timestamp_ns) {
   return encode_marker(RecordKind::Heartbeat, next_sequence, timestamp_ns);
 }
 
@@ -160,17 +161,28 @@ std::vector<std::uint8_t> encode_end_of_stream(std::uint64_t next_sequence,
 
 const char* to_string(DropReason reason) {
   switch (reason) {
-    case DropReason::Garbage: return "garbage";
-    case DropReason::HeaderCrc: return "header-crc";
-    case DropReason::PayloadCrc: return "payload-crc";
-    case DropReason::Truncated: return "truncated";
-    case DropReason::OversizeDims: return "oversize-dims";
-    case DropReason::ZeroDims: return "zero-dims";
-    case DropReason::PayloadSizeMismatch: return "payload-size-mismatch";
-    case DropReason::BadVersion: return "bad-version";
-    case DropReason::BadKind: return "bad-kind";
-    case DropReason::BadVoxelType: return "bad-voxel-type";
-    case DropReason::BadFlags: return "bad-flags";
+    case DropReason::Garbage:
+      return "garbage";
+    case DropReason::HeaderCrc:
+      return "header-crc";
+    case DropReason::PayloadCrc:
+      return "payload-crc";
+    case DropReason::Truncated:
+      return "truncated";
+    case DropReason::OversizeDims:
+      return "oversize-dims";
+    case DropReason::ZeroDims:
+      return "zero-dims";
+    case DropReason::PayloadSizeMismatch:
+      return "payload-size-mismatch";
+    case DropReason::BadVersion:
+      return "bad-version";
+    case DropReason::BadKind:
+      return "bad-kind";
+    case DropReason::BadVoxelType:
+      return "bad-voxel-type";
+    case DropReason::BadFlags:
+      return "bad-flags";
   }
   return "unknown";
 }
@@ -208,6 +220,82 @@ ScanResult scan_for_header(const std::uint8_t* buf, std::size_t from, std::size_
     ++q;
   }
   return {size, false};
+}
+
+struct Refusal {
+  DropReason reason;
+  std::string detail;
+};
+
+// The header checks a record must pass before its payload is awaited (dims and payload size are
+// refused here, so nothing is allocated for them).
+std::optional<Refusal> check_header(const RecordHeader& h, const ParserLimits& limits) {
+  if (h.version != kProtocolVersion) {
+    return Refusal{DropReason::BadVersion, "version " + std::to_string(h.version) + " (want 1)"};
+  }
+  if (h.kind < 1 || h.kind > 3) {
+    return Refusal{DropReason::BadKind, "kind " + std::to_string(h.kind)};
+  }
+  if (h.flags != 0) {
+    return Refusal{DropReason::BadFlags, "flags " + std::to_string(h.flags) + " (reserved, 0)"};
+  }
+  if (static_cast<RecordKind>(h.kind) == RecordKind::Volume) {
+    if (h.voxel_type != 1 && h.voxel_type != 2) {
+      return Refusal{DropReason::BadVoxelType, "voxel type " + std::to_string(h.voxel_type)};
+    }
+    const std::string dims_text = std::to_string(h.dims[0]) + "x" + std::to_string(h.dims[1]) +
+                                  "x" + std::to_string(h.dims[2]);
+    if (h.dims[0] == 0 || h.dims[1] == 0 || h.dims[2] == 0) {
+      return Refusal{DropReason::ZeroDims, "dims " + dims_text};
+    }
+    for (int a = 0; a < 3; ++a) {
+      if (h.dims[a] > limits.max_dims[a]) {
+        return Refusal{DropReason::OversizeDims, "dims " + dims_text + " above the limit " +
+                                                     std::to_string(limits.max_dims[0]) + "x" +
+                                                     std::to_string(limits.max_dims[1]) + "x" +
+                                                     std::to_string(limits.max_dims[2])};
+      }
+    }
+    const std::uint64_t want =
+        std::uint64_t{h.dims[0]} * h.dims[1] * h.dims[2] * static_cast<std::uint64_t>(h.voxel_type);
+    if (want > limits.max_payload_bytes) {
+      return Refusal{DropReason::OversizeDims, "payload of " + std::to_string(want) +
+                                                   " bytes above the limit " +
+                                                   std::to_string(limits.max_payload_bytes)};
+    }
+    if (h.payload_bytes != want) {
+      return Refusal{DropReason::PayloadSizeMismatch,
+                     "payload_bytes " + std::to_string(h.payload_bytes) + ", dims " + dims_text +
+                         " need " + std::to_string(want)};
+    }
+  } else if (h.payload_bytes != 0) {
+    return Refusal{DropReason::PayloadSizeMismatch,
+                   "payload_bytes " + std::to_string(h.payload_bytes) +
+                       " in a heartbeat / end-of-stream record (must be 0)"};
+  }
+  return std::nullopt;
+}
+
+ParserEvent make_event(const RecordHeader& h, RecordKind kind, const std::uint8_t* payload) {
+  switch (kind) {
+    case RecordKind::Volume: {
+      RawVolume v;
+      v.sequence = h.sequence;
+      v.timestamp_ns = h.timestamp_ns;
+      v.dims = {h.dims[0], h.dims[1], h.dims[2]};
+      v.type = static_cast<ProbeVoxelType>(h.voxel_type);
+      v.spacing_mm = h.spacing_mm;
+      v.origin_mm = h.origin_mm;
+      v.voxels.assign(payload, payload + h.payload_bytes);
+      v.received = std::chrono::steady_clock::now();
+      return v;
+    }
+    case RecordKind::Heartbeat:
+      return Heartbeat{h.sequence, h.timestamp_ns};
+    case RecordKind::EndOfStream:
+      break;
+  }
+  return EndOfStream{h.sequence, h.timestamp_ns};
 }
 
 }  // namespace
@@ -268,8 +356,8 @@ std::optional<ParserEvent> StreamParser::parse_one() {
     if (avail < 4) return std::nullopt;
     const std::uint8_t* p = buffer_.data() + pos_;
     if (std::memcmp(p, kMagic.data(), 4) != 0) {
-      pending_garbage_ = drop(DropReason::Garbage, std::nullopt, 0, 0,
-                              "bytes without a record magic skipped");
+      pending_garbage_ =
+          drop(DropReason::Garbage, std::nullopt, 0, 0, "bytes without a record magic skipped");
       continue;
     }
     if (avail < kHeaderBytes) return std::nullopt;
@@ -281,57 +369,12 @@ std::optional<ParserEvent> StreamParser::parse_one() {
     }
     const RecordHeader h = decode_header(p);
     const std::optional<std::uint64_t> seq = h.sequence;
-    auto refuse = [&](DropReason reason, std::string detail) -> ParserEvent {
+    if (auto refusal = check_header(h, limits_)) {
       consume(kHeaderBytes);
       silent_skip_ = true;
-      return drop(reason, seq, h.kind, kHeaderBytes, std::move(detail));
-    };
-    if (h.version != kProtocolVersion) {
-      return refuse(DropReason::BadVersion, "version " + std::to_string(h.version) + " (want 1)");
-    }
-    if (h.kind < 1 || h.kind > 3) {
-      return refuse(DropReason::BadKind, "kind " + std::to_string(h.kind));
-    }
-    if (h.flags != 0) {
-      return refuse(DropReason::BadFlags, "flags " + std::to_string(h.flags) + " (reserved, 0)");
+      return drop(refusal->reason, seq, h.kind, kHeaderBytes, std::move(refusal->detail));
     }
     const auto kind = static_cast<RecordKind>(h.kind);
-    if (kind == RecordKind::Volume) {
-      if (h.voxel_type != 1 && h.voxel_type != 2) {
-        return refuse(DropReason::BadVoxelType, "voxel type " + std::to_string(h.voxel_type));
-      }
-      const std::string dims_text = std::to_string(h.dims[0]) + "x" + std::to_string(h.dims[1]) +
-                                    "x" + std::to_string(h.dims[2]);
-      if (h.dims[0] == 0 || h.dims[1] == 0 || h.dims[2] == 0) {
-        return refuse(DropReason::ZeroDims, "dims " + dims_text);
-      }
-      for (int a = 0; a < 3; ++a) {
-        if (h.dims[a] > limits_.max_dims[a]) {
-          return refuse(DropReason::OversizeDims,
-                        "dims " + dims_text + " above the limit " +
-                            std::to_string(limits_.max_dims[0]) + "x" +
-                            std::to_string(limits_.max_dims[1]) + "x" +
-                            std::to_string(limits_.max_dims[2]));
-        }
-      }
-      const std::uint64_t want = std::uint64_t{h.dims[0]} * h.dims[1] * h.dims[2] *
-                                 static_cast<std::uint64_t>(h.voxel_type);
-      if (want > limits_.max_payload_bytes) {
-        return refuse(DropReason::OversizeDims, "payload of " + std::to_string(want) +
-                                                    " bytes above the limit " +
-                                                    std::to_string(limits_.max_payload_bytes));
-      }
-      if (h.payload_bytes != want) {
-        return refuse(DropReason::PayloadSizeMismatch,
-                      "payload_bytes " + std::to_string(h.payload_bytes) + ", dims " + dims_text +
-                          " need " + std::to_string(want));
-      }
-    } else if (h.payload_bytes != 0) {
-      return refuse(DropReason::PayloadSizeMismatch,
-                    "payload_bytes " + std::to_string(h.payload_bytes) +
-                        " in a heartbeat / end-of-stream record (must be 0)");
-    }
-
     const std::size_t total = kHeaderBytes + h.payload_bytes + kPayloadCrcBytes;
     // A record cut short is followed directly by the next record; look for a good header inside
     // the part received so far, so a truncation is detected without waiting for `total` bytes.
@@ -357,24 +400,7 @@ std::optional<ParserEvent> StreamParser::parse_one() {
       consume(total);
       return drop(DropReason::PayloadCrc, seq, h.kind, total, "payload crc32 mismatch");
     }
-    ParserEvent event;
-    switch (kind) {
-      case RecordKind::Volume: {
-        RawVolume v;
-        v.sequence = h.sequence;
-        v.timestamp_ns = h.timestamp_ns;
-        v.dims = {h.dims[0], h.dims[1], h.dims[2]};
-        v.type = static_cast<ProbeVoxelType>(h.voxel_type);
-        v.spacing_mm = h.spacing_mm;
-        v.origin_mm = h.origin_mm;
-        v.voxels.assign(payload, payload + h.payload_bytes);
-        v.received = std::chrono::steady_clock::now();
-        event = std::move(v);
-        break;
-      }
-      case RecordKind::Heartbeat: event = Heartbeat{h.sequence, h.timestamp_ns}; break;
-      case RecordKind::EndOfStream: event = EndOfStream{h.sequence, h.timestamp_ns}; break;
-    }
+    ParserEvent event = make_event(h, kind, payload);
     consume(total);
     return event;
   }
@@ -396,9 +422,9 @@ void StreamParser::finish() {
                                 std::to_string(kHeaderBytes + h.payload_bytes + kPayloadCrcBytes) +
                                 " bytes of the record"));
     } else if (magic_prefix) {
-      ready_.push_back(drop(DropReason::Truncated, std::nullopt, 0, avail,
-                            "input ended inside a record header (" + std::to_string(avail) +
-                                " bytes)"));
+      ready_.push_back(
+          drop(DropReason::Truncated, std::nullopt, 0, avail,
+               "input ended inside a record header (" + std::to_string(avail) + " bytes)"));
     } else {
       ready_.push_back(drop(DropReason::Garbage, std::nullopt, 0, avail,
                             "bytes without a record magic at the end of input"));
@@ -413,23 +439,6 @@ void StreamParser::reset() {
   scanned_to_ = 0;
   pending_garbage_.reset();
   silent_skip_ = false;
-}
-
-// ---------------------------------------------------------------------------------------------
-// SequenceTracker
-
-std::optional<SequenceTracker::Gap> SequenceTracker::observe_volume(std::uint64_t sequence) {
-  std::optional<Gap> gap;
-  if (expected_ && sequence > *expected_) gap = Gap{*expected_, sequence - *expected_};
-  expected_ = sequence + 1;
-  return gap;
-}
-
-std::optional<SequenceTracker::Gap> SequenceTracker::observe_next(std::uint64_t next_sequence) {
-  std::optional<Gap> gap;
-  if (expected_ && next_sequence > *expected_) gap = Gap{*expected_, next_sequence - *expected_};
-  expected_ = next_sequence;
-  return gap;
 }
 
 }  // namespace sonomesh::acquire

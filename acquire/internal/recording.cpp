@@ -24,7 +24,7 @@ class TeeSource final : public Source {
     if (!recording_) return r;
     if (r) {
       // Records are encoded deterministically, so this is byte for byte what the probe sent.
-      auto bytes = encode_volume_record(*r);
+      auto bytes = encode(*r);
       if (bytes) {
         next_sequence_ = r->sequence + 1;
         if (write(*bytes)) return r;
@@ -33,10 +33,12 @@ class TeeSource final : public Source {
       held_ = std::move(*r);
       recording_ = false;
       return tl::make_unexpected(AcquireError{
-          AcquireError::Code::IoError, errno,
-          "recording to " + path_.string() + " stopped: " +
-              (bytes ? std::string(std::strerror(errno)) : bytes.error().detail),
-          {}, 0});
+          AcquireError::Code::IoError,
+          errno,
+          "recording to " + path_.string() +
+              " stopped: " + (bytes ? std::string(std::strerror(errno)) : bytes.error().detail),
+          {},
+          0});
     }
     if (r.error().code == AcquireError::Code::EndOfStream && !eos_written_) {
       eos_written_ = true;
@@ -54,8 +56,18 @@ class TeeSource final : public Source {
   void interrupt() override { inner_->interrupt(); }
 
  private:
+  // A decoded volume (replay of a file) is recorded from its probe voxels.
+  static tl::expected<std::vector<std::uint8_t>, AcquireError> encode(const RawVolume& v) {
+    if (!v.voxels.empty() || !v.decoded) return encode_volume_record(v);
+    RawVolume copy = v;
+    copy.voxels = v.decoded->probe_voxels();
+    copy.decoded.reset();
+    return encode_volume_record(copy);
+  }
+
   bool write(const std::vector<std::uint8_t>& bytes) {
-    out_.write(reinterpret_cast<const char*>(bytes.data()), static_cast<std::streamsize>(bytes.size()));
+    out_.write(reinterpret_cast<const char*>(bytes.data()),
+               static_cast<std::streamsize>(bytes.size()));
     out_.flush();  // a crash keeps every record written so far
     return static_cast<bool>(out_);
   }
@@ -79,10 +91,12 @@ tl::expected<std::unique_ptr<Source>, AcquireError> tee_to_recording(
   }
   std::ofstream out(path, std::ios::binary | std::ios::trunc);
   if (!out) {
-    return tl::make_unexpected(AcquireError{AcquireError::Code::IoError, errno,
-                                            path.string() + ": cannot create recording: " +
-                                                std::strerror(errno),
-                                            {}, 0});
+    return tl::make_unexpected(
+        AcquireError{AcquireError::Code::IoError,
+                     errno,
+                     path.string() + ": cannot create recording: " + std::strerror(errno),
+                     {},
+                     0});
   }
   return std::make_unique<TeeSource>(std::move(inner), path, std::move(out));
 }

@@ -1,4 +1,4 @@
-// replay:PATH - a .usv recording (paced) or a directory of volume files (via the registered reader).
+// replay:PATH - a .usv recording (paced) or volume files (through the application's reader).
 #include <algorithm>
 #include <cerrno>
 #include <cmath>
@@ -20,7 +20,8 @@ tl::unexpected<AcquireError> timeout_error() {
   return tl::make_unexpected(AcquireError{AcquireError::Code::Timeout, 0, "no volume due", {}, 0});
 }
 tl::unexpected<AcquireError> end_error(std::string why) {
-  return tl::make_unexpected(AcquireError{AcquireError::Code::EndOfStream, 0, std::move(why), {}, 0});
+  return tl::make_unexpected(
+      AcquireError{AcquireError::Code::EndOfStream, 0, std::move(why), {}, 0});
 }
 
 // Shared pacing: a volume is handed out at its due time; next() waits for it up to its timeout.
@@ -142,14 +143,17 @@ class FileListReplaySource final : public PacedSource {
  public:
   FileListReplaySource(std::string uri, std::vector<fs::path> files, VolumeFileReader reader,
                        const SourceOptions& options)
-      : PacedSource(std::move(uri), options), files_(std::move(files)), reader_(std::move(reader)) {}
+      : PacedSource(std::move(uri), options),
+        files_(std::move(files)),
+        reader_(std::move(reader)) {}
 
  protected:
   bool has_timestamps() const override { return false; }
 
   tl::expected<RawVolume, AcquireError> produce() override {
-    if (index_ >= files_.size()) return end_error("end of replay (" + std::to_string(files_.size()) +
-                                                  " files)");
+    if (index_ >= files_.size()) {
+      return end_error("end of replay (" + std::to_string(files_.size()) + " files)");
+    }
     const std::uint64_t sequence = index_;
     const fs::path& file = files_[index_++];
     auto volume = reader_(file);
@@ -182,25 +186,33 @@ class FileListReplaySource final : public PacedSource {
   std::size_t index_ = 0;
 };
 
-bool is_volume_file(const fs::path& p) {
-  std::string ext = p.extension().string();
-  std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return std::tolower(c); });
-  return ext == ".nrrd" || ext == ".nhdr" || ext == ".mha" || ext == ".mhd";
+// Extensions compare in lower case and whole: "a.nii.gz" has ".gz" and ".nii.gz".
+bool is_volume_file(const fs::path& p, const VolumeFiles& files) {
+  std::string name = p.filename().string();
+  std::transform(name.begin(), name.end(), name.begin(),
+                 [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
+  return std::any_of(files.extensions.begin(), files.extensions.end(), [&](const std::string& e) {
+    return name.size() > e.size() && name.compare(name.size() - e.size(), e.size(), e) == 0;
+  });
 }
 
-}  // namespace
+std::string extension_list(const VolumeFiles& files) {
+  std::string list;
+  for (const auto& e : files.extensions) list += (list.empty() ? "" : "/") + e;
+  return list.empty() ? std::string("none registered") : list;
+}
 
-tl::expected<std::unique_ptr<Source>, AcquireError> open_replay_source(const std::string& spec,
-                                                                       const SourceOptions& options) {
-  const SplitSpec split = split_query(spec);
+tl::expected<std::unique_ptr<Source>, AcquireError> open_replay(const SourceUri& uri,
+                                                                const SourceOptions& options,
+                                                                const VolumeFiles& files) {
   SourceOptions opts = options;
-  const std::string uri = "replay:" + spec;
   auto invalid = [&](std::string what) {
     return tl::make_unexpected(
-        AcquireError{AcquireError::Code::InvalidArgument, 0, uri + ": " + what, {}, 0});
+        AcquireError{AcquireError::Code::InvalidArgument, 0, uri.text + ": " + what, {}, 0});
   };
-  for (const auto& [key, value] : split.query) {
-    if (key != "rate") return invalid("unknown option '" + key + "' (rate=HZ)");
+  if (auto refused = refuse_unknown_keys(uri, {"rate"})) return tl::make_unexpected(*refused);
+  if (const auto it = uri.query.find("rate"); it != uri.query.end()) {
+    const std::string& value = it->second;
     char* end = nullptr;
     const double rate = std::strtod(value.c_str(), &end);
     if (value.empty() || *end != '\0' || !(rate > 0) || !std::isfinite(rate)) {
@@ -209,34 +221,43 @@ tl::expected<std::unique_ptr<Source>, AcquireError> open_replay_source(const std
     opts.rate_hz = rate;
   }
   if (opts.rate_hz < 0 || !std::isfinite(opts.rate_hz)) return invalid("rate_hz must be >= 0");
-  const fs::path path = split.path;
+  const fs::path path = uri.body;
   std::error_code ec;
   const auto status = fs::status(path, ec);
   if (ec || !fs::exists(status)) {
-    return tl::make_unexpected(
-        AcquireError{AcquireError::Code::NotFound, ENOENT, uri + ": no such file or directory", {}, 0});
+    return tl::make_unexpected(AcquireError{AcquireError::Code::NotFound, ENOENT,
+                                            uri.text + ": no such file or directory", {}, 0});
   }
-  if (fs::is_directory(status) || is_volume_file(path)) {
-    std::vector<fs::path> files;
+  if (fs::is_directory(status) || is_volume_file(path, files)) {
+    std::vector<fs::path> list;
     if (fs::is_directory(status)) {
       for (const auto& entry : fs::directory_iterator(path, ec)) {
-        if (entry.is_regular_file() && is_volume_file(entry.path())) files.push_back(entry.path());
+        if (entry.is_regular_file() && is_volume_file(entry.path(), files)) {
+          list.push_back(entry.path());
+        }
       }
-      std::sort(files.begin(), files.end());
-      if (files.empty()) return invalid("no .nrrd/.nhdr/.mha/.mhd files in the directory");
+      std::sort(list.begin(), list.end());
+      if (list.empty()) return invalid("no volume files (" + extension_list(files) + ") in it");
     } else {
-      files.push_back(path);
+      list.push_back(path);
     }
-    VolumeFileReader reader = volume_file_reader();
-    if (!reader) {
-      return invalid("replay of volume files needs a volume file reader "
-                     "(set_volume_file_reader; sonomeshd registers one)");
-    }
-    return std::make_unique<FileListReplaySource>(uri, std::move(files), std::move(reader), opts);
+    if (!files.read) return invalid("replay of volume files needs a volume file reader");
+    return std::make_unique<FileListReplaySource>(uri.text, std::move(list), files.read, opts);
   }
-  auto source = std::make_unique<UsvReplaySource>(uri, path, opts);
+  auto source = std::make_unique<UsvReplaySource>(uri.text, path, opts);
   if (auto r = source->open(); !r) return tl::make_unexpected(r.error());
   return source;
 }
 
+}  // namespace
 }  // namespace sonomesh::acquire::internal
+
+namespace sonomesh::acquire {
+
+SourceOpener replay_opener(VolumeFiles files) {
+  return [files = std::move(files)](const SourceUri& uri, const SourceOptions& options) {
+    return internal::open_replay(uri, options, files);
+  };
+}
+
+}  // namespace sonomesh::acquire

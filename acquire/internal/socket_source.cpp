@@ -1,8 +1,4 @@
 // unix:PATH and tcp:HOST:PORT: probe stream client with reconnect and interrupt.
-#include <arpa/inet.h>
-#include <fcntl.h>
-#include <netdb.h>
-#include <netinet/in.h>
 #include <poll.h>
 #include <sys/socket.h>
 #include <sys/un.h>
@@ -13,6 +9,7 @@
 #include <deque>
 #include <vector>
 
+#include "acquire/internal/socket_connect.h"
 #include "acquire/internal/sources.h"
 #include "acquire/internal/stream_decoder.h"
 #include "acquire/internal/waker.h"
@@ -23,21 +20,11 @@ namespace {
 using Clock = std::chrono::steady_clock;
 using std::chrono::milliseconds;
 
-constexpr milliseconds kFirstBackoff{50};
-constexpr milliseconds kMaxBackoff{500};
 constexpr std::size_t kReadChunk = 1 << 20;
 
 AcquireError os_error(AcquireError::Code code, int err, std::string what) {
   return AcquireError{code, err, what + ": " + std::strerror(err), {}, 0};
 }
-
-struct Endpoint {
-  bool is_unix = true;
-  std::string path;  // unix
-  std::string host;  // tcp
-  std::string port;  // tcp
-  std::string uri;
-};
 
 class SocketSource final : public Source {
  public:
@@ -46,7 +33,7 @@ class SocketSource final : public Source {
   ~SocketSource() override { close_fd(); }
 
   tl::expected<void, AcquireError> connect_now(milliseconds timeout) {
-    auto fd = connect_once(Clock::now() + timeout);
+    auto fd = connect_stream(endpoint_, Clock::now() + timeout, waker_);
     if (!fd) return tl::make_unexpected(fd.error());
     fd_ = *fd;
     return {};
@@ -72,18 +59,18 @@ class SocketSource final : public Source {
         return std::move(*r);
       }
       if (fd_ < 0) {
-        const auto now = Clock::now();
-        if (now >= next_attempt_) {
-          auto fd = connect_once(std::min(deadline, now + options_.connect_timeout));
+        if (backoff_.due()) {
+          auto fd = connect_stream(
+              endpoint_, std::min(deadline, Clock::now() + options_.connect_timeout), waker_);
           if (fd) {
             fd_ = *fd;
-            backoff_ = kFirstBackoff;
+            backoff_.succeeded();
             continue;
           }
-          next_attempt_ = Clock::now() + backoff_;
-          backoff_ = std::min(backoff_ * 2, kMaxBackoff);
+          backoff_.failed();
         }
-        if (Clock::now() >= deadline || waker_.sleep_until(std::min(deadline, next_attempt_))) {
+        if (Clock::now() >= deadline ||
+            waker_.sleep_until(std::min(deadline, backoff_.next_attempt()))) {
           return timeout_error();
         }
         continue;
@@ -143,70 +130,7 @@ class SocketSource final : public Source {
       ready_.push_back(tl::make_unexpected(
           AcquireError{AcquireError::Code::Disconnected, err, endpoint_.uri + ": " + why, {}, 0}));
     }
-    backoff_ = kFirstBackoff;
-    next_attempt_ = Clock::now() + backoff_;
-    backoff_ = std::min(backoff_ * 2, kMaxBackoff);
-  }
-
-  // Non-blocking connect, waiting for completion until `deadline` (or an interrupt).
-  tl::expected<int, AcquireError> finish_connect(int fd, const sockaddr* addr, socklen_t len,
-                                                 Clock::time_point deadline) {
-    if (::connect(fd, addr, len) == 0) return fd;
-    if (errno != EINPROGRESS && errno != EAGAIN) {
-      const int err = errno;
-      ::close(fd);
-      const auto code = (err == ENOENT || err == ECONNREFUSED) ? AcquireError::Code::NotFound
-                                                               : AcquireError::Code::IoError;
-      return tl::make_unexpected(os_error(code, err, "connect " + endpoint_.uri));
-    }
-    pollfd fds[2] = {{fd, POLLOUT, 0}, {waker_.fd(), POLLIN, 0}};
-    const int n = ::poll(fds, 2, Waker::poll_ms(deadline));
-    if (n <= 0 || (fds[1].revents & POLLIN)) {
-      ::close(fd);
-      return tl::make_unexpected(AcquireError{AcquireError::Code::Timeout, ETIMEDOUT,
-                                              "connect " + endpoint_.uri + ": timed out", {}, 0});
-    }
-    int err = 0;
-    socklen_t err_len = sizeof err;
-    ::getsockopt(fd, SOL_SOCKET, SO_ERROR, &err, &err_len);
-    if (err != 0) {
-      ::close(fd);
-      const auto code = err == ECONNREFUSED ? AcquireError::Code::NotFound
-                                            : AcquireError::Code::IoError;
-      return tl::make_unexpected(os_error(code, err, "connect " + endpoint_.uri));
-    }
-    return fd;
-  }
-
-  tl::expected<int, AcquireError> connect_once(Clock::time_point deadline) {
-    if (endpoint_.is_unix) {
-      sockaddr_un addr{};
-      addr.sun_family = AF_UNIX;
-      std::memcpy(addr.sun_path, endpoint_.path.data(), endpoint_.path.size());
-      const int fd = ::socket(AF_UNIX, SOCK_STREAM | SOCK_NONBLOCK | SOCK_CLOEXEC, 0);
-      if (fd < 0) return tl::make_unexpected(os_error(AcquireError::Code::IoError, errno, "socket"));
-      return finish_connect(fd, reinterpret_cast<const sockaddr*>(&addr), sizeof addr, deadline);
-    }
-    addrinfo hints{};
-    hints.ai_family = AF_UNSPEC;
-    hints.ai_socktype = SOCK_STREAM;
-    addrinfo* list = nullptr;
-    const int rc = ::getaddrinfo(endpoint_.host.c_str(), endpoint_.port.c_str(), &hints, &list);
-    if (rc != 0) {
-      return tl::make_unexpected(AcquireError{AcquireError::Code::NotFound, 0,
-                                              endpoint_.uri + ": " + ::gai_strerror(rc), {}, 0});
-    }
-    tl::expected<int, AcquireError> result = tl::make_unexpected(
-        AcquireError{AcquireError::Code::NotFound, 0, endpoint_.uri + ": no address", {}, 0});
-    for (addrinfo* ai = list; ai != nullptr; ai = ai->ai_next) {
-      const int fd = ::socket(ai->ai_family, ai->ai_socktype | SOCK_NONBLOCK | SOCK_CLOEXEC,
-                              ai->ai_protocol);
-      if (fd < 0) continue;
-      result = finish_connect(fd, ai->ai_addr, ai->ai_addrlen, deadline);
-      if (result) break;
-    }
-    ::freeaddrinfo(list);
-    return result;
+    backoff_.dropped();
   }
 
   Endpoint endpoint_;
@@ -217,8 +141,7 @@ class SocketSource final : public Source {
   Waker waker_;
   int fd_ = -1;
   bool finished_ = false;
-  milliseconds backoff_ = kFirstBackoff;
-  Clock::time_point next_attempt_{};
+  Backoff backoff_;
 };
 
 tl::expected<std::unique_ptr<Source>, AcquireError> open_socket(Endpoint endpoint,
@@ -232,30 +155,29 @@ tl::expected<std::unique_ptr<Source>, AcquireError> open_socket(Endpoint endpoin
 
 }  // namespace
 
-tl::expected<std::unique_ptr<Source>, AcquireError> open_unix_source(const std::string& spec,
-                                                                     const SourceOptions& options) {
-  if (spec.empty() || spec.size() >= sizeof(sockaddr_un{}.sun_path)) {
-    return tl::make_unexpected(AcquireError{
-        AcquireError::Code::InvalidArgument, 0,
-        "unix:" + spec + ": socket path must be 1.." +
-            std::to_string(sizeof(sockaddr_un{}.sun_path) - 1) + " characters",
-        {}, 0});
+OpenResult open_unix_source(const SourceUri& uri, const SourceOptions& options) {
+  if (auto refused = refuse_unknown_keys(uri, {})) return tl::make_unexpected(*refused);
+  const std::string& path = uri.body;
+  if (path.empty() || path.size() >= sizeof(sockaddr_un{}.sun_path)) {
+    return tl::make_unexpected(AcquireError{AcquireError::Code::InvalidArgument,
+                                            0,
+                                            uri.text + ": socket path must be 1.." +
+                                                std::to_string(sizeof(sockaddr_un{}.sun_path) - 1) +
+                                                " characters",
+                                            {},
+                                            0});
   }
-  return open_socket(Endpoint{true, spec, "", "", "unix:" + spec}, options);
+  return open_socket(Endpoint{true, path, "", "", uri.text}, options);
 }
 
-tl::expected<std::unique_ptr<Source>, AcquireError> open_tcp_source(const std::string& spec,
-                                                                    const SourceOptions& options) {
-  const auto colon = spec.rfind(':');
-  if (colon == std::string::npos || colon == 0 || colon + 1 == spec.size()) {
-    return tl::make_unexpected(AcquireError{AcquireError::Code::InvalidArgument, 0,
-                                            "tcp:" + spec + ": expected tcp:HOST:PORT", {}, 0});
+OpenResult open_tcp_source(const SourceUri& uri, const SourceOptions& options) {
+  if (auto refused = refuse_unknown_keys(uri, {})) return tl::make_unexpected(*refused);
+  auto endpoint = tcp_endpoint(uri.body, uri.text);
+  if (!endpoint) {
+    return tl::make_unexpected(AcquireError{
+        AcquireError::Code::InvalidArgument, 0, uri.text + ": expected tcp:HOST:PORT", {}, 0});
   }
-  std::string host = spec.substr(0, colon);
-  if (host.size() > 2 && host.front() == '[' && host.back() == ']') {
-    host = host.substr(1, host.size() - 2);  // [::1]
-  }
-  return open_socket(Endpoint{false, "", host, spec.substr(colon + 1), "tcp:" + spec}, options);
+  return open_socket(std::move(*endpoint), options);
 }
 
 }  // namespace sonomesh::acquire::internal

@@ -10,7 +10,6 @@
 
 #include <libusb.h>
 #include <poll.h>
-#include <sys/eventfd.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -24,11 +23,15 @@
 #include <mutex>
 #include <string>
 #include <string_view>
+#include <utility>
 #include <vector>
 
 #include "acquire/acquire.h"
+#include "acquire/internal/backoff.h"
 #include "acquire/internal/sources.h"
 #include "acquire/internal/stream_decoder.h"
+#include "acquire/internal/usb_probe.h"
+#include "acquire/internal/waker.h"
 
 namespace sonomesh::acquire::internal {
 namespace {
@@ -42,96 +45,22 @@ constexpr std::chrono::milliseconds kMaxEventWait{100};  // bounded so interrupt
 // When libusb's poll reports ready without completing anything (usbfs nodes that are always
 // "ready", e.g. under emulation), wait this long before asking again instead of spinning.
 constexpr std::chrono::microseconds kIdleBackoff{1000};
-constexpr std::chrono::milliseconds kFirstBackoff{50};
-constexpr std::chrono::milliseconds kMaxBackoff{500};
-
-int errno_of(int libusb_code) {
-  switch (libusb_code) {
-    case LIBUSB_ERROR_IO: return EIO;
-    case LIBUSB_ERROR_INVALID_PARAM: return EINVAL;
-    case LIBUSB_ERROR_ACCESS: return EACCES;
-    case LIBUSB_ERROR_NO_DEVICE: return ENODEV;
-    case LIBUSB_ERROR_NOT_FOUND: return ENOENT;
-    case LIBUSB_ERROR_BUSY: return EBUSY;
-    case LIBUSB_ERROR_TIMEOUT: return ETIMEDOUT;
-    case LIBUSB_ERROR_OVERFLOW: return EOVERFLOW;
-    case LIBUSB_ERROR_PIPE: return EPIPE;
-    case LIBUSB_ERROR_INTERRUPTED: return EINTR;
-    case LIBUSB_ERROR_NO_MEM: return ENOMEM;
-    case LIBUSB_ERROR_NOT_SUPPORTED: return ENOTSUP;
-    default: return EIO;
-  }
-}
 
 AcquireError make_error(AcquireError::Code code, std::string detail, int os_errno = 0) {
-  AcquireError e;
-  e.code = code;
-  e.os_errno = os_errno;
-  e.detail = std::move(detail);
-  return e;
-}
-
-AcquireError usb_error(const std::string& what, int libusb_code) {
-  AcquireError::Code code = AcquireError::Code::IoError;
-  if (libusb_code == LIBUSB_ERROR_NO_DEVICE) code = AcquireError::Code::Disconnected;
-  if (libusb_code == LIBUSB_ERROR_NOT_FOUND) code = AcquireError::Code::NotFound;
-  if (libusb_code == LIBUSB_ERROR_TIMEOUT) code = AcquireError::Code::Timeout;
-  return make_error(code, what + ": " + libusb_error_name(libusb_code), errno_of(libusb_code));
-}
-
-struct UsbSpec {
-  std::uint16_t vendor_id = 0;
-  std::uint16_t product_id = 0;
-  std::string serial;  // empty: any
-
-  std::string text() const {
-    char buf[16];
-    std::snprintf(buf, sizeof buf, "%04x:%04x", vendor_id, product_id);
-    return serial.empty() ? std::string(buf) : std::string(buf) + "/" + serial;
-  }
-};
-
-bool parse_hex16(std::string_view s, std::uint16_t& out) {
-  if (s.empty() || s.size() > 4) return false;
-  unsigned v = 0;
-  const auto [ptr, ec] = std::from_chars(s.data(), s.data() + s.size(), v, 16);
-  if (ec != std::errc{} || ptr != s.data() + s.size()) return false;
-  out = static_cast<std::uint16_t>(v);
-  return true;
-}
-
-tl::expected<UsbSpec, AcquireError> parse_spec(std::string_view text) {
-  UsbSpec spec;
-  const auto slash = text.find('/');
-  const std::string_view ids = text.substr(0, slash);
-  if (slash != std::string_view::npos) spec.serial = std::string(text.substr(slash + 1));
-  const auto colon = ids.find(':');
-  if (colon == std::string_view::npos || !parse_hex16(ids.substr(0, colon), spec.vendor_id) ||
-      !parse_hex16(ids.substr(colon + 1), spec.product_id) ||
-      (slash != std::string_view::npos && spec.serial.empty()))
-    return tl::unexpected(make_error(AcquireError::Code::InvalidArgument,
-                                     "usb:" + std::string(text) + ": expected usb:VID:PID[/SERIAL] with hex VID/PID"));
-  return spec;
+  return AcquireError{code, os_errno, std::move(detail), {}, 0};
 }
 
 class UsbSource final : public Source {
  public:
-  UsbSource(UsbSpec spec, const SourceOptions& options) : spec_(std::move(spec)), decoder_(options) {}
+  UsbSource(UsbSpec spec, const SourceOptions& options)
+      : spec_(std::move(spec)), decoder_(options) {}
 
-  ~UsbSource() override {
-    teardown();
-    if (wake_fd_ >= 0) ::close(wake_fd_);
-  }
+  ~UsbSource() override { teardown(); }
 
   UsbSource(const UsbSource&) = delete;
   UsbSource& operator=(const UsbSource&) = delete;
 
-  tl::expected<void, AcquireError> start() {
-    wake_fd_ = ::eventfd(0, EFD_NONBLOCK | EFD_CLOEXEC);
-    if (wake_fd_ < 0)
-      return tl::unexpected(make_error(AcquireError::Code::IoError, std::string("usb: eventfd: ") + std::strerror(errno), errno));
-    return connect();
-  }
+  tl::expected<void, AcquireError> start() { return connect(); }
 
   Result next(std::chrono::milliseconds timeout) override {
     const auto deadline = Clock::now() + timeout;
@@ -141,19 +70,18 @@ class UsbSource final : public Source {
         ready_.pop_front();
         return r;
       }
-      if (interrupted_.exchange(false)) return timeout_error();
+      if (std::exchange(woken_, false) || waker_.drain()) return timeout_error();
       const auto now = Clock::now();
       if (!connected_) {
-        if (now >= next_attempt_) {
+        if (backoff_.due()) {
           if (connect()) {
-            backoff_ = kFirstBackoff;
+            backoff_.succeeded();
             continue;
           }
-          backoff_ = std::min(backoff_ * 2, kMaxBackoff);
-          next_attempt_ = Clock::now() + backoff_;
+          backoff_.failed();
         }
         if (Clock::now() >= deadline) return timeout_error();
-        wait_wake(std::min(next_attempt_, deadline));
+        woken_ = waker_.sleep_until(std::min(backoff_.next_attempt(), deadline));
         continue;
       }
       if (now >= deadline) return timeout_error();
@@ -165,9 +93,7 @@ class UsbSource final : public Source {
   bool live() const override { return true; }
 
   void interrupt() override {
-    interrupted_.store(true);
-    const std::uint64_t one = 1;
-    [[maybe_unused]] const auto n = ::write(wake_fd_, &one, sizeof one);
+    waker_.wake();  // sticky: the next next() returns Timeout even if none is blocked now
     std::lock_guard lock(ctx_mutex_);
     if (ctx_) libusb_interrupt_event_handler(ctx_);
   }
@@ -182,19 +108,6 @@ class UsbSource final : public Source {
 
   static Result timeout_error() {
     return tl::unexpected(make_error(AcquireError::Code::Timeout, "no volume within the timeout"));
-  }
-
-  void wait_wake(Clock::time_point until) {
-    const auto now = Clock::now();
-    if (until <= now) return;
-    const int ms = static_cast<int>(std::chrono::ceil<std::chrono::milliseconds>(until - now).count());
-    pollfd p{wake_fd_, POLLIN, 0};
-    if (::poll(&p, 1, ms) > 0) drain_wake();
-  }
-  void drain_wake() {
-    std::uint64_t v;
-    while (::read(wake_fd_, &v, sizeof v) > 0) {
-    }
   }
 
   /// One round of libusb event handling, then whatever the decoder has completed.
@@ -227,7 +140,8 @@ class UsbSource final : public Source {
       return;
     }
     if (!progress_ && r != LIBUSB_ERROR_INTERRUPTED && Clock::now() - start < kIdleBackoff / 2)
-      wait_wake(std::min(deadline, Clock::now() + std::chrono::duration_cast<Clock::duration>(kIdleBackoff)));
+      woken_ = waker_.sleep_until(std::min(
+          deadline, Clock::now() + std::chrono::duration_cast<Clock::duration>(kIdleBackoff)));
   }
 
   void push_result(Result r) {
@@ -240,13 +154,13 @@ class UsbSource final : public Source {
     // The record in flight was cut by the unplug: report it, then the outage (once).
     decoder_.end_of_input();
     while (auto result = decoder_.next()) push_result(std::move(*result));
-    ready_.push_back(tl::unexpected(make_error(AcquireError::Code::Disconnected,
-                                               "usb:" + spec_.text() + ": device disconnected" +
-                                                   (lost_detail_.empty() ? "" : " (" + lost_detail_ + ")"),
-                                               ENODEV)));
+    ready_.push_back(
+        tl::unexpected(make_error(AcquireError::Code::Disconnected,
+                                  "usb:" + spec_.text() + ": device disconnected" +
+                                      (lost_detail_.empty() ? "" : " (" + lost_detail_ + ")"),
+                                  ENODEV)));
     lost_detail_.clear();
-    backoff_ = kFirstBackoff;
-    next_attempt_ = Clock::now() + backoff_;
+    backoff_.dropped();
   }
 
   static void LIBUSB_CALL on_transfer(libusb_transfer* transfer) {
@@ -287,9 +201,11 @@ class UsbSource final : public Source {
           link_lost_ = true;
           return;
         }
-        ready_.push_back(tl::unexpected(make_error(
-            AcquireError::Code::IoError,
-            "usb:" + spec_.text() + ": bulk IN transfer failed (status " + std::to_string(t->status) + ")", EIO)));
+        ready_.push_back(
+            tl::unexpected(make_error(AcquireError::Code::IoError,
+                                      "usb:" + spec_.text() + ": bulk IN transfer failed (status " +
+                                          std::to_string(t->status) + ")",
+                                      EIO)));
         if (!stopping_) submit(slot);
         return;
     }
@@ -308,7 +224,7 @@ class UsbSource final : public Source {
   /// Enumerate, match VID:PID (and serial), open, claim interface 0, start the transfers.
   tl::expected<void, AcquireError> connect() {
     libusb_context* ctx = nullptr;
-    int r = libusb_init(&ctx);
+    const int r = libusb_init(&ctx);
     if (r != 0) return tl::unexpected(usb_error("usb: libusb_init", r));
     {
       std::lock_guard lock(ctx_mutex_);
@@ -319,67 +235,10 @@ class UsbSource final : public Source {
       return tl::unexpected(std::move(e));
     };
 
-    libusb_device** list = nullptr;
-    const ssize_t n = libusb_get_device_list(ctx_, &list);
-    if (n < 0) return fail(usb_error("usb: enumerate", static_cast<int>(n)));
-    std::string serial_seen;
-    int open_error = 0;
-    for (ssize_t i = 0; i < n && !handle_; ++i) {
-      libusb_device_descriptor desc{};
-      if (libusb_get_device_descriptor(list[i], &desc) != 0) continue;
-      if (desc.idVendor != spec_.vendor_id || desc.idProduct != spec_.product_id) continue;
-      libusb_device_handle* h = nullptr;
-      if (const int o = libusb_open(list[i], &h); o != 0) {
-        open_error = o;
-        continue;
-      }
-      if (!spec_.serial.empty()) {
-        unsigned char text[256] = {};
-        const int len = desc.iSerialNumber == 0
-                            ? -1
-                            : libusb_get_string_descriptor_ascii(h, desc.iSerialNumber, text, sizeof text - 1);
-        const std::string serial = len > 0 ? std::string(reinterpret_cast<char*>(text), static_cast<std::size_t>(len)) : "";
-        if (serial != spec_.serial) {
-          if (!serial.empty()) serial_seen += (serial_seen.empty() ? "" : ",") + serial;
-          libusb_close(h);
-          continue;
-        }
-      }
-      handle_ = h;
-    }
-    libusb_free_device_list(list, 1);
-    if (!handle_) {
-      std::string detail = "usb:" + spec_.text() + ": no such device";
-      if (!serial_seen.empty()) detail += " (serials present: " + serial_seen + ")";
-      if (open_error != 0) return fail(usb_error("usb:" + spec_.text() + ": open", open_error));
-      return fail(make_error(AcquireError::Code::NotFound, detail, ENODEV));
-    }
-
-    libusb_config_descriptor* config = nullptr;
-    r = libusb_get_active_config_descriptor(libusb_get_device(handle_), &config);
-    if (r != 0) return fail(usb_error("usb:" + spec_.text() + ": config descriptor", r));
-    int endpoint = -1;
-    for (int i = 0; i < config->bNumInterfaces && endpoint < 0; ++i) {
-      const libusb_interface& itf = config->interface[i];
-      if (itf.num_altsetting < 1 || itf.altsetting[0].bInterfaceNumber != 0) continue;
-      const libusb_interface_descriptor& alt = itf.altsetting[0];
-      for (int e = 0; e < alt.bNumEndpoints; ++e) {
-        const libusb_endpoint_descriptor& ep = alt.endpoint[e];
-        if ((ep.bmAttributes & 0x3) == LIBUSB_TRANSFER_TYPE_BULK && (ep.bEndpointAddress & LIBUSB_ENDPOINT_IN)) {
-          endpoint = ep.bEndpointAddress;
-          break;
-        }
-      }
-    }
-    libusb_free_config_descriptor(config);
-    if (endpoint < 0)
-      return fail(make_error(AcquireError::Code::InvalidArgument,
-                             "usb:" + spec_.text() + ": interface 0 has no bulk IN endpoint"));
-    endpoint_ = static_cast<unsigned char>(endpoint);
-
-    libusb_set_auto_detach_kernel_driver(handle_, 1);  // not supported everywhere: best effort
-    r = libusb_claim_interface(handle_, 0);
-    if (r != 0) return fail(usb_error("usb:" + spec_.text() + ": claim interface 0", r));
+    auto probe = open_probe(ctx_, spec_);
+    if (!probe) return fail(probe.error());
+    handle_ = probe->handle;
+    endpoint_ = probe->endpoint;
     claimed_ = true;
 
     stopping_ = false;
@@ -391,12 +250,15 @@ class UsbSource final : public Source {
       slot->owner = this;
       slot->buffer.resize(kTransferBytes);
       slot->transfer = libusb_alloc_transfer(0);
-      if (!slot->transfer) return fail(make_error(AcquireError::Code::IoError, "usb: out of memory", ENOMEM));
-      libusb_fill_bulk_transfer(slot->transfer, handle_, endpoint_, slot->buffer.data(), kTransferBytes,
-                                &UsbSource::on_transfer, slot.get(), 0);
+      if (!slot->transfer)
+        return fail(make_error(AcquireError::Code::IoError, "usb: out of memory", ENOMEM));
+      libusb_fill_bulk_transfer(slot->transfer, handle_, endpoint_, slot->buffer.data(),
+                                kTransferBytes, &UsbSource::on_transfer, slot.get(), 0);
       slots_.push_back(std::move(slot));
       submit(*slots_.back());
-      if (link_lost_) return fail(make_error(AcquireError::Code::IoError, "usb:" + spec_.text() + ": " + lost_detail_, EIO));
+      if (link_lost_)
+        return fail(make_error(AcquireError::Code::IoError,
+                               "usb:" + spec_.text() + ": " + lost_detail_, EIO));
     }
     connected_ = true;
     return {};
@@ -440,8 +302,8 @@ class UsbSource final : public Source {
 
   UsbSpec spec_;
   StreamDecoder decoder_;
-  int wake_fd_ = -1;
-  std::atomic<bool> interrupted_{false};
+  Waker waker_;
+  bool woken_ = false;    // a sleep consumed an interrupt(): next() returns Timeout
   std::mutex ctx_mutex_;  // guards ctx_ against interrupt() from another thread
   libusb_context* ctx_ = nullptr;
   libusb_device_handle* handle_ = nullptr;
@@ -456,15 +318,14 @@ class UsbSource final : public Source {
   std::string lost_detail_;
   std::vector<std::unique_ptr<Slot>> slots_;
   std::deque<Result> ready_;
-  std::chrono::milliseconds backoff_{kFirstBackoff};
-  Clock::time_point next_attempt_{};
+  Backoff backoff_;
 };
 
 }  // namespace
 
-tl::expected<std::unique_ptr<Source>, AcquireError> open_usb_source(const std::string& spec,
-                                                                    const SourceOptions& options) {
-  auto parsed = parse_spec(spec);
+OpenResult open_usb_source(const SourceUri& uri, const SourceOptions& options) {
+  if (auto refused = refuse_unknown_keys(uri, {})) return tl::unexpected(*refused);
+  auto parsed = parse_usb_spec(uri.body);
   if (!parsed) return tl::unexpected(parsed.error());
   auto source = std::make_unique<UsbSource>(std::move(*parsed), options);
   if (auto started = source->start(); !started) return tl::unexpected(started.error());

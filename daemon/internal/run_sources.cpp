@@ -1,101 +1,96 @@
 #include "daemon/internal/run_sources.h"
 
-#include <cstring>
-
 #include <spdlog/spdlog.h>
+
+#include <mutex>
 
 #include "sim/phantom_source.h"
 #include "sim/sim.h"
+#include "volume/decoded_volume.h"
 #include "volume/volume.h"
 
 namespace sonomesh::daemon {
+namespace {
 
 using acquire::AcquireError;
 
-void register_volume_file_reader() {
-  acquire::set_volume_file_reader(
-      [](const std::filesystem::path& path) -> tl::expected<acquire::RawVolume, AcquireError> {
-        auto read = volume::read_volume(path);
-        if (!read) {
-          const auto code = read.error->code == volume::VolumeIoError::Code::NotFound
-                                ? AcquireError::Code::NotFound
-                                : AcquireError::Code::BadRecord;
-          return tl::make_unexpected(AcquireError{code, 0, read.error->message, {}, 0});
-        }
-        const volume::Volume& v = read.volume;
-        acquire::RawVolume raw;
-        raw.dims = {v.dims().x(), v.dims().y(), v.dims().z()};
-        raw.spacing_mm = {v.spacing_mm().x(), v.spacing_mm().y(), v.spacing_mm().z()};
-        raw.origin_mm = {v.origin_mm().x(), v.origin_mm().y(), v.origin_mm().z()};
-        switch (v.type()) {
-          case volume::VoxelType::UInt8:
-            raw.type = acquire::ProbeVoxelType::UInt8;
-            raw.voxels = v.u8();
-            break;
-          case volume::VoxelType::UInt16: {
-            raw.type = acquire::ProbeVoxelType::UInt16;
-            const auto& src = v.u16();
-            raw.voxels.resize(src.size() * 2);
-            for (std::size_t i = 0; i < src.size(); ++i) {  // little endian, as on the wire
-              raw.voxels[2 * i] = static_cast<std::uint8_t>(src[i] & 0xff);
-              raw.voxels[2 * i + 1] = static_cast<std::uint8_t>(src[i] >> 8);
-            }
-            break;
-          }
-          default:
-            return tl::make_unexpected(AcquireError{
-                AcquireError::Code::BadRecord, 0,
-                path.string() + ": voxel type " + volume::to_string(v.type()) +
-                    " is not a probe type (uint8 or uint16)",
-                {}, 0});
-        }
-        raw.received = std::chrono::steady_clock::now();
-        return raw;
-      });
+// The file is decoded once, into the Volume the worker uses (RawVolume::decoded): any voxel
+// type read_volume reads replays, and no bytes are packed for the probe format and unpacked.
+tl::expected<acquire::RawVolume, AcquireError> read_volume_file(const std::filesystem::path& path) {
+  auto read = volume::read_volume(path);
+  if (!read) {
+    const auto code = read.error->code == volume::VolumeIoError::Code::NotFound
+                          ? AcquireError::Code::NotFound
+                          : AcquireError::Code::BadRecord;
+    return tl::make_unexpected(AcquireError{code, 0, read.error->message, {}, 0});
+  }
+  const volume::Volume& v = read.volume;
+  acquire::RawVolume raw;
+  raw.dims = {v.dims().x(), v.dims().y(), v.dims().z()};
+  raw.spacing_mm = {v.spacing_mm().x(), v.spacing_mm().y(), v.spacing_mm().z()};
+  raw.origin_mm = {v.origin_mm().x(), v.origin_mm().y(), v.origin_mm().z()};
+  for (int c = 0; c < 3; ++c) {
+    for (int r = 0; r < 3; ++r) raw.direction[3 * c + r] = v.direction()(r, c);
+  }
+  raw.type = v.type() == volume::VoxelType::UInt16 ? acquire::ProbeVoxelType::UInt16
+                                                   : acquire::ProbeVoxelType::UInt8;
+  raw.decoded = std::make_shared<volume::DecodedVolume>(std::move(read.volume));
+  raw.received = std::chrono::steady_clock::now();
+  return raw;
 }
 
-namespace {
+tl::expected<std::unique_ptr<acquire::Source>, AcquireError> open_sim(
+    const acquire::SourceUri& uri, const acquire::SourceOptions&) {
+  return sim::open_phantom_source(uri.text);
+}
 
-bool starts_with(const std::string& s, const char* prefix) {
-  return s.rfind(prefix, 0) == 0;
+// The phantom's own seed (at breathing phase 0; the target moves by less than its radius) is
+// the default when none is configured: the demo needs no --seed-mm.
+std::optional<std::string> phantom_seed(const std::string& uri, OpenedSource& opened) {
+  auto parsed = sim::parse_sim_uri(uri);
+  if (!parsed) return acquire::to_string(parsed.error());
+  try {
+    sim::PhantomSpec spec = parsed->spec;
+    spec.time_s = 0.0f;
+    const sim::Phantom phantom = sim::make_phantom(spec);
+    opened.phantom_seed_mm =
+        std::array<float, 3>{phantom.seed_mm.x(), phantom.seed_mm.y(), phantom.seed_mm.z()};
+  } catch (const std::exception& e) {
+    return uri + ": " + e.what();
+  }
+  return std::nullopt;
 }
 
 }  // namespace
 
+void register_daemon_sources() {
+  static std::once_flag once;
+  std::call_once(once, [] {
+    acquire::register_source_scheme(
+        {"sim", "sim:PHANTOM[?rate=HZ&size=N&count=N&seed=N]", false, open_sim});
+    acquire::VolumeFiles files{{".nrrd", ".nhdr", ".mha", ".mhd", ".nii", ".nii.gz"},
+                               read_volume_file};
+    acquire::register_source_scheme({"replay", "replay:FILE.usv|DIR|VOLUME-FILE[?rate=HZ]", false,
+                                     acquire::replay_opener(std::move(files))});
+  });
+}
+
 OpenedSource open_run_source(const RunConfig& config) {
+  register_daemon_sources();
   OpenedSource opened;
   const std::string uri = config.source;
   const acquire::SourceOptions options = source_options(config);
-
-  if (starts_with(uri, "sim:")) {
-    auto parsed = sim::parse_sim_uri(uri);
-    if (!parsed) {
-      opened.fatal_error = acquire::to_string(parsed.error());
-      return opened;
-    }
-    try {
-      // The phantom's own seed (at breathing phase 0; the target moves by less than its radius)
-      // is the default when none is configured: the demo needs no --seed-mm.
-      sim::PhantomSpec spec = parsed->spec;
-      spec.time_s = 0.0f;
-      const sim::Phantom phantom = sim::make_phantom(spec);
-      opened.phantom_seed_mm = std::array<float, 3>{phantom.seed_mm.x(), phantom.seed_mm.y(),
-                                                    phantom.seed_mm.z()};
-    } catch (const std::exception& e) {
-      opened.fatal_error = std::string(uri) + ": " + e.what();
-      return opened;
-    }
-    opened.factory = [uri]() { return sim::open_phantom_source(uri); };
-    auto source = sim::open_phantom_source(uri);
-    if (!source) {
-      opened.fatal_error = acquire::to_string(source.error());
-      return opened;
-    }
-    opened.live = (*source)->live();
-    opened.source = std::move(*source);
+  auto parsed = acquire::parse_source_uri(uri);
+  if (!parsed) {
+    opened.fatal_error = acquire::to_string(parsed.error());
     return opened;
   }
-
+  if (parsed->scheme == "sim") {
+    if (auto err = phantom_seed(uri, opened)) {
+      opened.fatal_error = *err;
+      return opened;
+    }
+  }
   opened.factory = [uri, options]() { return acquire::open_source(uri, options); };
   auto source = acquire::open_source(uri, options);
   if (source) {
@@ -104,13 +99,11 @@ OpenedSource open_run_source(const RunConfig& config) {
     return opened;
   }
   const AcquireError& e = source.error();
-  const bool live_scheme = starts_with(uri, "unix:") || starts_with(uri, "tcp:") ||
-                           starts_with(uri, "usb:") || starts_with(uri, "v4l2:");
-  const bool transient = e.code == AcquireError::Code::NotFound ||
-                         e.code == AcquireError::Code::Disconnected ||
-                         e.code == AcquireError::Code::Timeout ||
-                         e.code == AcquireError::Code::IoError;
-  if (live_scheme && transient) {
+  const auto scheme = acquire::find_source_scheme(parsed->scheme);
+  const bool transient =
+      e.code == AcquireError::Code::NotFound || e.code == AcquireError::Code::Disconnected ||
+      e.code == AcquireError::Code::Timeout || e.code == AcquireError::Code::IoError;
+  if (scheme && scheme->device && transient) {
     // A daemon started before its probe: wait for it rather than exit.
     spdlog::warn("{}: {}; waiting for it", uri, acquire::to_string(e));
     opened.live = true;

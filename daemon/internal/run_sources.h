@@ -1,7 +1,7 @@
 #pragma once
 /// @file
-/// @brief Opening the `run` source: sim: (the built-in simulator), everything else through
-/// acquire::open_source, with the volume-file reader directory replay needs.
+/// @brief Opening the `run` source through acquire's scheme table, to which the daemon adds
+/// sim: (the built-in simulator) and replay of volume files (read by volume::read_volume).
 
 #include <array>
 #include <memory>
@@ -18,14 +18,15 @@ struct OpenedSource {
   SourceFactory factory;                    // opens the same source again
   bool live = true;
   std::optional<std::array<float, 3>> phantom_seed_mm;  // sim: the phantom's seed
-  std::optional<std::string> fatal_error;                // cannot run at all (bad URI, no file)
+  std::optional<std::string> fatal_error;               // cannot run at all (bad URI, no file)
 };
 
-/// Registers volume::read_volume as acquire's reader for replay of .nrrd/.nhdr/.mha/.mhd files.
-void register_volume_file_reader();
+/// Adds sim: and the volume-file replay: to acquire's scheme table (once; thread-safe).
+void register_daemon_sources();
 
-/// Opens config.source. Live sockets/probes that are not reachable yet are not fatal (the
-/// daemon waits for them); a bad URI or a missing replay path is.
+/// Registers the daemon's schemes, then opens config.source. A device that is not reachable
+/// yet (a scheme marked `device`) is not fatal: the daemon waits for it; a bad URI or a missing
+/// replay path is.
 OpenedSource open_run_source(const RunConfig& config);
 
 }  // namespace sonomesh::daemon

@@ -4,6 +4,7 @@
 #include <cmath>
 #include <condition_variable>
 #include <mutex>
+#include <optional>
 #include <stdexcept>
 
 namespace sonomesh::sim {
@@ -23,31 +24,51 @@ bool parse_number(const std::string& text, double& out) {
   return !text.empty() && *end == '\0' && std::isfinite(out);
 }
 
+// One option's value, checked; an error names the option.
+std::optional<std::string> set_option(PhantomSourceOptions& options, const std::string& key,
+                                      double x) {
+  if (key == "rate") {
+    if (!(x > 0) || x > 1000) return "rate must be in (0, 1000] Hz";
+    options.rate_hz = x;
+  } else if (key == "size") {
+    if (x < 16 || x > 512 || x != std::floor(x)) return "size must be an integer 16..512";
+    options.spec.size_vox = static_cast<int>(x);
+  } else if (key == "count") {
+    if (x < 0 || x != std::floor(x)) return "count must be a non-negative integer";
+    options.count = static_cast<std::uint64_t>(x);
+  } else if (key == "seed") {
+    if (x < 0 || x > 4294967295.0 || x != std::floor(x)) {
+      return "seed must be a 32-bit unsigned integer";
+    }
+    options.spec.seed = static_cast<std::uint32_t>(x);
+  } else if (key == "oblique") {
+    if (x != 0 && x != 1) return "oblique must be 0 or 1";
+    options.spec.oblique = x == 1;
+  } else if (key == "contrast") {
+    if (!(x >= 0 && x <= 1)) return "contrast must be in [0, 1]";
+    options.spec.contrast = static_cast<float>(x);
+  }
+  return std::nullopt;
+}
+
 }  // namespace
 
 tl::expected<PhantomSourceOptions, AcquireError> parse_sim_uri(const std::string& uri) {
-  std::string spec = uri.rfind("sim:", 0) == 0 ? uri.substr(4) : uri;
+  auto parsed = acquire::parse_source_uri(uri.rfind("sim:", 0) == 0 ? uri : "sim:" + uri);
+  if (!parsed) return tl::make_unexpected(parsed.error());
   PhantomSourceOptions options;
-  const auto q = spec.find('?');
-  options.spec.phantom = spec.substr(0, q);
+  options.spec.phantom = parsed->body;
   const auto& names = phantom_names();
   if (std::find(names.begin(), names.end(), options.spec.phantom) == names.end()) {
     std::string list;
     for (const auto& n : names) list += (list.empty() ? "" : ", ") + n;
     return invalid(uri, "unknown phantom '" + options.spec.phantom + "' (" + list + ")");
   }
-  if (q == std::string::npos) return options;
-  std::string rest = spec.substr(q + 1);
-  std::size_t start = 0;
-  while (start < rest.size()) {
-    auto amp = rest.find('&', start);
-    if (amp == std::string::npos) amp = rest.size();
-    const std::string item = rest.substr(start, amp - start);
-    start = amp + 1;
-    if (item.empty()) continue;
-    const auto eq = item.find('=');
-    const std::string key = item.substr(0, eq);
-    const std::string value = eq == std::string::npos ? "" : item.substr(eq + 1);
+  if (auto refused = acquire::refuse_unknown_keys(
+          *parsed, {"rate", "size", "count", "seed", "contrast", "realism", "oblique"})) {
+    return tl::make_unexpected(*refused);
+  }
+  for (const auto& [key, value] : parsed->query) {
     if (key == "realism") {
       if (value != "simple" && value != "echo") return invalid(uri, "realism must be simple or echo");
       if (value == "echo") options.spec = with_echo_realism(options.spec);
@@ -55,27 +76,7 @@ tl::expected<PhantomSourceOptions, AcquireError> parse_sim_uri(const std::string
     }
     double x = 0;
     if (!parse_number(value, x)) return invalid(uri, key + "='" + value + "' is not a number");
-    if (key == "rate") {
-      if (!(x > 0) || x > 1000) return invalid(uri, "rate must be in (0, 1000] Hz");
-      options.rate_hz = x;
-    } else if (key == "size") {
-      if (x < 16 || x > 512 || x != std::floor(x)) return invalid(uri, "size must be an integer 16..512");
-      options.spec.size_vox = static_cast<int>(x);
-    } else if (key == "count") {
-      if (x < 0 || x != std::floor(x)) return invalid(uri, "count must be a non-negative integer");
-      options.count = static_cast<std::uint64_t>(x);
-    } else if (key == "seed") {
-      if (x < 0 || x > 4294967295.0 || x != std::floor(x)) return invalid(uri, "seed must be a 32-bit unsigned integer");
-      options.spec.seed = static_cast<std::uint32_t>(x);
-    } else if (key == "oblique") {
-      if (x != 0 && x != 1) return invalid(uri, "oblique must be 0 or 1");
-      options.spec.oblique = x == 1;
-    } else if (key == "contrast") {
-      if (!(x >= 0 && x <= 1)) return invalid(uri, "contrast must be in [0, 1]");
-      options.spec.contrast = static_cast<float>(x);
-    } else {
-      return invalid(uri, "unknown option '" + key + "' (rate, size, count, seed, contrast, realism, oblique)");
-    }
+    if (auto why = set_option(options, key, x)) return invalid(uri, *why);
   }
   return options;
 }

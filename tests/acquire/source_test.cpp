@@ -24,6 +24,7 @@ using Clock = std::chrono::steady_clock;
 using test::append;
 using test::make_volume;
 using test::record;
+using OpenResultForTest = tl::expected<std::unique_ptr<Source>, AcquireError>;
 
 fs::path temp_dir() {
   static const fs::path dir = [] {
@@ -335,25 +336,31 @@ TEST(Replay, CorruptRecordingReportsAndContinues) {
   EXPECT_EQ(next_event(**replay).error().code, AcquireError::Code::EndOfStream);
 }
 
+// The reader's contract only: these files hold .usv records under a volume-file name.
+tl::expected<RawVolume, AcquireError> read_record_file(const fs::path& p) {
+  StreamParser parser;
+  const auto bytes = read_file(p);
+  parser.feed(bytes.data(), bytes.size());
+  auto e = parser.next_event();
+  if (!e || !std::holds_alternative<RawVolume>(*e)) {
+    return tl::make_unexpected(AcquireError{AcquireError::Code::BadRecord, 0, "unreadable", {}, 0});
+  }
+  return std::get<RawVolume>(std::move(*e));
+}
+
 TEST(Replay, DirectoryUsesTheRegisteredReaderInNameOrder) {
   const fs::path dir = temp_dir() / "volumes";
   fs::create_directories(dir);
-  // The reader hook's contract only: these files hold .usv records under a volume-file name.
-  for (int i : {2, 0, 1}) write_file(dir / ("vol_" + std::to_string(i) + ".nrrd"), record(make_volume(50 + i, {8, 8, 8})));
+  for (int i : {2, 0, 1}) {
+    write_file(dir / ("vol_" + std::to_string(i) + ".nrrd"), record(make_volume(50 + i, {8, 8, 8})));
+  }
   write_file(dir / "notes.txt", {1, 2, 3});
-  set_volume_file_reader({});
+  // acquire's own replay: knows no volume files.
   EXPECT_EQ(open_source("replay:" + dir.string()).error().code, AcquireError::Code::InvalidArgument);
-  set_volume_file_reader([](const fs::path& p) -> tl::expected<RawVolume, AcquireError> {
-    StreamParser parser;
-    const auto bytes = read_file(p);
-    parser.feed(bytes.data(), bytes.size());
-    auto e = parser.next_event();
-    if (!e || !std::holds_alternative<RawVolume>(*e)) {
-      return tl::make_unexpected(AcquireError{AcquireError::Code::BadRecord, 0, "unreadable", {}, 0});
-    }
-    return std::get<RawVolume>(std::move(*e));
-  });
-  auto replay = open_source("replay:" + dir.string());
+  const SourceOpener opener = replay_opener({{".nrrd"}, read_record_file});
+  auto uri = parse_source_uri("replay:" + dir.string());
+  ASSERT_TRUE(uri);
+  auto replay = opener(*uri, {});
   ASSERT_TRUE(replay) << to_string(replay.error());
   for (int i = 0; i < 3; ++i) {
     auto r = next_event(**replay);
@@ -362,7 +369,53 @@ TEST(Replay, DirectoryUsesTheRegisteredReaderInNameOrder) {
     EXPECT_TRUE(r->voxels == make_volume(50 + i, {8, 8, 8}).voxels);
   }
   EXPECT_EQ(next_event(**replay).error().code, AcquireError::Code::EndOfStream);
-  set_volume_file_reader({});
+}
+
+TEST(Replay, ExtensionsMatchWholeAndIgnoreCase) {
+  const fs::path dir = temp_dir() / "volumes_ext";
+  fs::create_directories(dir);
+  write_file(dir / "a.NII.GZ", record(make_volume(1, {8, 8, 8})));
+  write_file(dir / "b.gz", record(make_volume(2, {8, 8, 8})));
+  auto uri = parse_source_uri("replay:" + dir.string() + "?rate=1000");
+  ASSERT_TRUE(uri);
+  auto replay = replay_opener({{".nii.gz"}, read_record_file})(*uri, {});
+  ASSERT_TRUE(replay) << to_string(replay.error());
+  EXPECT_TRUE(next_event(**replay).has_value());
+  EXPECT_EQ(next_event(**replay).error().code, AcquireError::Code::EndOfStream);
+}
+
+TEST(SourceUri, OneParserForEveryScheme) {
+  auto uri = parse_source_uri("igtl:localhost:18944?device=Image_Reference&x=");
+  ASSERT_TRUE(uri);
+  EXPECT_EQ(uri->scheme, "igtl");
+  EXPECT_EQ(uri->body, "localhost:18944");
+  EXPECT_EQ(uri->query.at("device"), "Image_Reference");
+  EXPECT_EQ(uri->query.at("x"), "");
+  EXPECT_EQ(parse_source_uri("no-scheme").error().code, AcquireError::Code::InvalidArgument);
+  EXPECT_EQ(parse_source_uri("tcp:h:1?a=1&a=2").error().code, AcquireError::Code::InvalidArgument);
+  EXPECT_EQ(parse_source_uri("tcp:h:1?=1").error().code, AcquireError::Code::InvalidArgument);
+  EXPECT_TRUE(refuse_unknown_keys(*uri, {"device"}).has_value()) << "x is unknown";
+  EXPECT_FALSE(refuse_unknown_keys(*parse_source_uri("igtl:h:1?device=a"), {"device"}));
+}
+
+TEST(SourceRegistry, SchemesCanBeAddedAndUnknownOnesAreRefused) {
+  for (const char* name : {"unix", "tcp", "replay", "usb", "v4l2", "igtl"}) {
+    EXPECT_TRUE(find_source_scheme(name).has_value()) << name;
+  }
+  auto unknown = open_source("nosuch:thing");
+  ASSERT_FALSE(unknown);
+  EXPECT_EQ(unknown.error().code, AcquireError::Code::InvalidArgument);
+  EXPECT_NE(unknown.error().detail.find("igtl:HOST:PORT"), std::string::npos)
+      << "the error lists the schemes: " << unknown.error().detail;
+  register_source_scheme({"test-one", "test-one:N", false,
+                          [](const SourceUri& uri, const SourceOptions&) -> OpenResultForTest {
+                            return tl::make_unexpected(AcquireError{
+                                AcquireError::Code::NotFound, 0, "body " + uri.body, {}, 0});
+                          }});
+  auto opened = open_source("test-one:7");
+  ASSERT_FALSE(opened);
+  EXPECT_EQ(opened.error().detail, "body 7");
+  EXPECT_EQ(open_source("tcp:127.0.0.1:1?x=1").error().code, AcquireError::Code::InvalidArgument);
 }
 
 }  // namespace

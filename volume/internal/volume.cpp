@@ -4,6 +4,7 @@
 #include <stdexcept>
 
 #include "volume/volume.h"
+#include "volume/decoded_volume.h"
 
 namespace sonomesh::volume {
 
@@ -30,6 +31,9 @@ Volume::Volume(const Vec3i& dims, const Vec3f& spacing_mm, const Vec3f& origin_m
 }
 
 Volume Volume::from_raw(const acquire::RawVolume& raw) {
+  if (const auto* decoded = dynamic_cast<const DecodedVolume*>(raw.decoded.get())) {
+    return decoded->volume();
+  }
   const Vec3i dims(raw.dims[0], raw.dims[1], raw.dims[2]);
   const Vec3f spacing(raw.spacing_mm[0], raw.spacing_mm[1], raw.spacing_mm[2]);
   const Vec3f origin(raw.origin_mm[0], raw.origin_mm[1], raw.origin_mm[2]);
@@ -49,6 +53,21 @@ Volume Volume::from_raw(const acquire::RawVolume& raw) {
       out[i] = static_cast<std::uint16_t>(raw.voxels[2 * i] | (raw.voxels[2 * i + 1] << 8));
   }
   return v;
+}
+
+std::vector<std::uint8_t> DecodedVolume::probe_voxels() const {
+  std::vector<std::uint8_t> bytes;
+  if (volume_.type() == VoxelType::UInt8) {
+    bytes = volume_.u8();
+  } else if (volume_.type() == VoxelType::UInt16) {
+    const auto& src = volume_.u16();
+    bytes.resize(src.size() * 2);
+    for (std::size_t i = 0; i < src.size(); ++i) {  // little endian, as on the wire
+      bytes[2 * i] = static_cast<std::uint8_t>(src[i] & 0xff);
+      bytes[2 * i + 1] = static_cast<std::uint8_t>(src[i] >> 8);
+    }
+  }
+  return bytes;
 }
 
 VoxelType Volume::type() const { return static_cast<VoxelType>(data_.index()); }
