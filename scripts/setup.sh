@@ -18,6 +18,8 @@ packages=(
   libcli11-dev libtomlplusplus-dev nlohmann-json3-dev libspdlog-dev libfmt-dev libcpp-httplib-dev
   # tests and benchmarks (HIL tests run the real libusb/V4L2 paths under umockdev)
   libgtest-dev libgmock-dev libbenchmark-dev umockdev libumockdev-dev
+  # the sanitizer build and the libFuzzer targets (SONOMESH_SANITIZE / SONOMESH_FUZZ in test.sh)
+  clang libclang-rt-14-dev
 )
 
 missing=()
