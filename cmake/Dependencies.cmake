@@ -22,6 +22,16 @@ target_include_directories(sonomesh_dep_teem SYSTEM INTERFACE ${TEEM_INCLUDE_DIR
 target_link_libraries(sonomesh_dep_teem INTERFACE ${TEEM_LIB})
 add_library(deps::teem ALIAS sonomesh_dep_teem)
 
+# NIfTI-1 (nifticlib, libnifti2-dev + libniftiio-dev): Debian's NIFTIConfig.cmake points at
+# /usr/lib instead of the multiarch directory, so the library is linked directly.
+find_path(NIFTI_INCLUDE_DIR nifti1_io.h PATH_SUFFIXES nifti REQUIRED)
+find_library(NIFTI_IO_LIB niftiio REQUIRED)
+find_library(NIFTI_ZNZ_LIB znz REQUIRED)
+add_library(sonomesh_dep_nifti INTERFACE)
+target_include_directories(sonomesh_dep_nifti SYSTEM INTERFACE ${NIFTI_INCLUDE_DIR})
+target_link_libraries(sonomesh_dep_nifti INTERFACE ${NIFTI_IO_LIB} ${NIFTI_ZNZ_LIB} ZLIB::ZLIB m)
+add_library(deps::nifti ALIAS sonomesh_dep_nifti)
+
 # FFTW single precision with threads.
 pkg_check_modules(FFTW3F REQUIRED IMPORTED_TARGET fftw3f)
 find_library(FFTW3F_THREADS_LIB fftw3f_threads REQUIRED)

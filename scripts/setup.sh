@@ -8,8 +8,9 @@ packages=(
   cmake g++ make pkg-config ca-certificates
   # acquire/: USB probes (V4L2 needs only <linux/videodev2.h> from linux-libc-dev)
   libusb-1.0-0-dev linux-libc-dev zlib1g-dev libexpected-dev
-  # volume/: smoothing, grids, NRRD
+  # volume/: smoothing, grids, NRRD, NIfTI-1
   libopencv-core-dev libopencv-imgproc-dev libeigen3-dev libopenvdb-dev libtbb-dev libteem-dev
+  libnifti2-dev
   # OpenVDB 10 headers include Boost (numeric/conversion, any, uuid); its -dev package omits them
   libboost-dev
   # segment/ and reconstruct/

@@ -2,10 +2,12 @@
 /// @file
 /// @brief The Volume value type, its file formats, smoothing, gradients and sampling.
 ///
-/// Index space (i, j, k), i fastest in memory; physical space in millimetres:
-/// p_mm = origin_mm + spacing_mm ⊙ ijk (axis-aligned, DESIGN.md "Coordinates and units").
+/// Index space (i, j, k), i fastest in memory; the grid frame in millimetres:
+/// p_mm = origin_mm + spacing_mm ⊙ ijk; the world (LPS) position is grid_to_world_mm(p_mm)
+/// (DESIGN.md "Geometry and files").
 
 #include <Eigen/Core>
+#include <array>
 #include <cstdint>
 #include <filesystem>
 #include <memory>
@@ -108,8 +110,14 @@ struct VolumeIoError {
 
 /// Result of a read: a volume, or an error.
 struct VolumeReadResult {
+  VolumeReadResult() = default;
+  VolumeReadResult(Volume v, std::optional<VolumeIoError> e, std::string n = {})
+      : volume(std::move(v)), error(std::move(e)), note(std::move(n)) {}
   Volume volume;
   std::optional<VolumeIoError> error;
+  /// One line worth telling the user about a successful read (e.g. only the first frame of a 4D
+  /// NIfTI was read); empty otherwise.
+  std::string note;
   explicit operator bool() const { return !error.has_value(); }
 };
 
@@ -120,19 +128,44 @@ struct ReadOptions {
 
 enum class Compression { Raw, Gzip };
 
-/// Reads NRRD (.nrrd, .nhdr + detached data; raw or gzip; through Teem) or MetaImage (.mha,
-/// .mhd + .raw; raw or zlib), by extension. Axis-aligned direction matrices with flips are
-/// applied to the data so that index space maps to mm as above; other directions are refused.
-/// uint8/uint16/float load as such; other numeric types (int8/16/32, uint32, double) are converted
-/// to Float32. NRRD in RAS or LAS space is converted to LPS (the space written). The mm position of
-/// every file voxel is kept, so after a flip its index changes (file j -> ny-1-j): use mm, not file
-/// indices. Sizes are checked against options.max_voxels and the data on disk before allocating.
+/// Reads NRRD (.nrrd, .nhdr + detached data; raw or gzip; through Teem), MetaImage (.mha, .mhd +
+/// .raw; raw or zlib) or NIfTI-1 (.nii, .nii.gz; through nifticlib), by extension.
+/// Geometry: any orthonormal direction matrix is accepted. Axis-aligned ones (flips only) are
+/// applied to the data so that index space maps to mm with an identity direction, as before;
+/// oblique or permuted ones are kept as Volume::direction() with origin_mm = the first voxel's
+/// world position and spacing_mm = the axes' lengths (the pipeline runs in that grid frame,
+/// grid_to_world_mm maps results back). Sheared or degenerate directions are refused
+/// (UnsupportedOrientation). World space is LPS: NRRD in RAS or LAS and NIfTI (RAS) are converted.
+/// uint8/uint16/float load as such; other numeric types (int8/16/32/64, uint32/64, double, and
+/// NIfTI data with an intensity scaling) are converted to Float32. A 4D NIfTI loads its first frame
+/// (`note` says so). The mm position of every file voxel is kept, so after a flip its index changes
+/// (file j -> ny-1-j): use mm, not file indices. Sizes are checked against options.max_voxels and
+/// the data on disk before allocating. NRRD header field lines over 400 bytes are refused (Teem
+/// would overflow a buffer on them).
 VolumeReadResult read_volume(const std::filesystem::path& path, const ReadOptions& options = {});
 
-/// Writes NRRD (.nrrd attached, .nhdr detached) or MetaImage (.mha, .mhd + .raw) by extension.
+/// Writes NRRD (.nrrd attached, .nhdr detached), MetaImage (.mha, .mhd + .raw) or NIfTI-1 (.nii,
+/// .nii.gz; `compression` is decided by the name) by extension, with the volume's direction.
 /// Returns an error instead of throwing.
 std::optional<VolumeIoError> write_volume(const Volume& volume, const std::filesystem::path& path,
                                           Compression compression = Compression::Raw);
+
+/// One labelled segment, as 3D Slicer and ITK-SNAP describe it.
+struct SegmentInfo {
+  std::string name = "sonomesh";
+  std::array<float, 3> color_rgb{0.902f, 0.706f, 0.235f};  // 0..1
+  std::uint8_t label_value = 1;
+};
+
+/// Writes a UInt8 label volume as a 3D Slicer segmentation (.seg.nrrd: gzip NRRD with one segment,
+/// the Segment0_* and Segmentation_* fields Slicer writes, extent = the labelled voxels' box).
+std::optional<VolumeIoError> write_segmentation(const Volume& labels,
+                                                const std::filesystem::path& path,
+                                                const SegmentInfo& segment = {});
+
+/// Writes an ITK-SNAP label description file (the clear label 0 and the segment).
+std::optional<VolumeIoError> write_label_description(const std::filesystem::path& path,
+                                                     const SegmentInfo& segment = {});
 
 // ---------------------------------------------------------------------------------------------
 // Processing.

@@ -36,7 +36,8 @@ std::optional<MeshIoError> write_ply_impl(const Mesh& mesh, const std::vector<St
                                           const std::filesystem::path& path) {
   std::ofstream out(path, std::ios::binary | std::ios::trunc);
   if (!out) return io_error(MeshIoError::Code::OpenFailed, path, "cannot open for writing");
-  std::string header = "ply\nformat binary_little_endian 1.0\nelement vertex " +
+  // SPACE=LPS: 3D Slicer 4.11+ then loads the mesh in place over the volume (world frame, mm).
+  std::string header = "ply\nformat binary_little_endian 1.0\ncomment SPACE=LPS\nelement vertex " +
                        std::to_string(mesh.vertices.size()) +
                        "\nproperty float x\nproperty float y\nproperty float z\n";
   if (stop) header += "property uchar stop\n";
@@ -180,7 +181,7 @@ std::optional<MeshIoError> write_stl(const Mesh& mesh, const std::filesystem::pa
   std::ofstream out(path, std::ios::binary | std::ios::trunc);
   if (!out) return io_error(MeshIoError::Code::OpenFailed, path, "cannot open for writing");
   std::string buf(80, '\0');
-  const char title[] = "sonomesh binary STL, mm";
+  const char title[] = "SPACE=LPS sonomesh binary STL, mm";  // Slicer reads the leading SPACE=
   std::memcpy(buf.data(), title, sizeof(title) - 1);
   put(buf, static_cast<std::uint32_t>(mesh.triangles.size()));
   for (const auto& t : mesh.triangles) {
@@ -200,7 +201,7 @@ std::optional<MeshIoError> write_obj(const Mesh& mesh, const std::filesystem::pa
   if (!out) return io_error(MeshIoError::Code::OpenFailed, path, "cannot open for writing");
   std::ostringstream s;
   s.precision(9);
-  s << "# sonomesh mesh, mm\n";
+  s << "# SPACE=LPS\n# sonomesh mesh, mm\n";
   for (const auto& v : mesh.vertices) s << "v " << v.x() << ' ' << v.y() << ' ' << v.z() << '\n';
   for (const auto& t : mesh.triangles)
     s << "f " << t[0] + 1 << ' ' << t[1] + 1 << ' ' << t[2] + 1 << '\n';

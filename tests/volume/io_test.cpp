@@ -229,12 +229,43 @@ TEST(MetaImageOrientation, FlippedAxesAreResolvedIntoData) {
   expect_matches_file_geometry(fx.volume, Vec3f(10, 20, 30), Vec3f(-1, 1, 1));
 }
 
-TEST(MetaImageOrientation, ObliqueAndPermutedMatricesAreRefused) {
+// Oblique and permuted axes are kept as the volume's direction; the voxels stay in file order and
+// grid_to_world_mm puts each one where the file says.
+void expect_world_positions(const Volume& v, const Vec3f& origin, const Mat3f& axes_times_spacing) {
+  for (int k = 0; k < 2; ++k)
+    for (int j = 0; j < 2; ++j)
+      for (int i = 0; i < 3; ++i) {
+        EXPECT_EQ(v.value(i, j, k), file_value(i, j, k));
+        const Vec3f world = v.grid_to_world_mm(v.index_to_mm(Vec3f(i, j, k)));
+        const Vec3f expected = origin + axes_times_spacing * Vec3f(i, j, k);
+        EXPECT_LT((world - expected).norm(), 1e-4f) << world.transpose() << " vs " << expected.transpose();
+      }
+}
+
+TEST(MetaImageOrientation, ObliqueAndPermutedMatricesAreKeptAsDirection) {
   TempDir dir;
   const auto path = dir / "oblique.mha";
+  const float h = 0.70710678f;
   write_file(path, mha_header("0.70710678 0.70710678 0 -0.70710678 0.70710678 0 0 0 1") + bytes_0_to(12));
-  expect_error(path, Code::UnsupportedOrientation);
+  auto r = read_volume(path);
+  ASSERT_TRUE(r) << r.error->message;
+  Mat3f axes;  // columns: axis directions times ElementSpacing (1 2 3)
+  axes << h, -2 * h, 0, h, 2 * h, 0, 0, 0, 3;
+  expect_world_positions(r.volume, Vec3f(10, 20, 30), axes);
+  EXPECT_TRUE(r.volume.spacing_mm().isApprox(Vec3f(1, 2, 3)));
   write_file(path, mha_header("0 1 0 1 0 0 0 0 1") + bytes_0_to(12));
+  r = read_volume(path);
+  ASSERT_TRUE(r) << r.error->message;
+  axes << 0, 2, 0, 1, 0, 0, 0, 0, 3;
+  expect_world_positions(r.volume, Vec3f(10, 20, 30), axes);
+}
+
+TEST(MetaImageOrientation, NonOrthogonalAndDegenerateMatricesAreRefused) {
+  TempDir dir;
+  const auto path = dir / "sheared.mha";
+  write_file(path, mha_header("1 0 0 0.6 0.8 0 0 0 1") + bytes_0_to(12));
+  expect_error(path, Code::UnsupportedOrientation);
+  write_file(path, mha_header("1 0 0 1 0 0 0 0 1") + bytes_0_to(12));
   expect_error(path, Code::UnsupportedOrientation);
 }
 
@@ -261,10 +292,19 @@ TEST(NrrdOrientation, RasSpaceIsConvertedToLps) {
   expect_matches_file_geometry(r.volume, Vec3f(-10, -20, 30), Vec3f(-1, -1, 1));
 }
 
-TEST(NrrdOrientation, ObliqueDirectionsAreRefused) {
+TEST(NrrdOrientation, ObliqueDirectionsAreKeptAndShearIsRefused) {
   TempDir dir;
   const auto path = dir / "oblique.nrrd";
   write_file(path, nrrd_header("(0.8,0.6,0) (-1.2,1.6,0) (0,0,3)") + "encoding: raw\n\n" + bytes_0_to(12));
+  const auto r = read_volume(path);
+  ASSERT_TRUE(r) << r.error->message;
+  Mat3f axes;
+  axes << 0.8f, -1.2f, 0, 0.6f, 1.6f, 0, 0, 0, 3;
+  expect_world_positions(r.volume, Vec3f(10, 20, 30), axes);
+  EXPECT_TRUE(r.volume.spacing_mm().isApprox(Vec3f(1, 2, 3)));
+  write_file(path, nrrd_header("(0.8,0.6,0) (1.2,1.6,0) (0,0,3)") + "encoding: raw\n\n" + bytes_0_to(12));
+  expect_error(path, Code::UnsupportedOrientation);
+  write_file(path, nrrd_header("(1,0,0) (2,0,0) (0,0,3)") + "encoding: raw\n\n" + bytes_0_to(12));
   expect_error(path, Code::UnsupportedOrientation);
 }
 

@@ -5,7 +5,11 @@
 #include <cctype>
 #include <climits>
 #include <cmath>
+#include <fstream>
 #include <system_error>
+
+#include <Eigen/SVD>
+#include <zlib.h>
 
 namespace sonomesh::volume {
 namespace internal {
@@ -42,29 +46,51 @@ std::optional<VolumeIoError> check_dims(const std::filesystem::path& path,
   return std::nullopt;
 }
 
+namespace {
+std::string axis_text(const std::array<double, 3>& d) {
+  return "(" + std::to_string(d[0]) + " " + std::to_string(d[1]) + " " + std::to_string(d[2]) + ")";
+}
+}  // namespace
+
 std::optional<VolumeIoError> axis_geometry(const std::filesystem::path& path,
                                            const std::array<std::array<double, 3>, 3>& directions,
                                            AxisGeometry& out) {
+  Eigen::Matrix3d unit;  // column a = unit direction of axis a
+  bool diagonal = true;
   for (int a = 0; a < 3; ++a) {
     const auto& d = directions[a];
     const double len = std::sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
     if (!std::isfinite(len) || len <= 0.0)
       return io_error(Code::BadHeader, path,
                       "axis " + std::to_string(a) + " has a zero or non-finite direction/spacing");
-    for (int c = 0; c < 3; ++c)
-      if (c != a && std::abs(d[c]) > 1e-6 * len)
-        return io_error(Code::UnsupportedOrientation, path,
-                        "direction of axis " + std::to_string(a) + " (" + std::to_string(d[0]) +
-                            " " + std::to_string(d[1]) + " " + std::to_string(d[2]) +
-                            ") is not along a coordinate axis; oblique or permuted volumes are "
-                            "not supported, resample them first");
     out.spacing_mm[a] = static_cast<float>(len);
     if (!std::isfinite(out.spacing_mm[a]) || out.spacing_mm[a] <= 0.0f)
       return io_error(Code::BadHeader, path,
                       "spacing of axis " + std::to_string(a) + " (" + std::to_string(len) +
                           ") is out of range");
-    out.flip[a] = d[a] < 0.0;
+    for (int c = 0; c < 3; ++c) {
+      unit(c, a) = d[c] / len;
+      if (c != a && std::abs(unit(c, a)) > 1e-6) diagonal = false;
+    }
   }
+  // Orthonormal within what 6-digit file headers carry; anything else would shear the grid.
+  constexpr double kTolerance = 1e-4;
+  for (int a = 0; a < 3; ++a)
+    for (int b = a + 1; b < 3; ++b)
+      if (std::abs(unit.col(a).dot(unit.col(b))) > kTolerance)
+        return io_error(Code::UnsupportedOrientation, path,
+                        "directions of axes " + std::to_string(a) + " " + axis_text(directions[a]) +
+                            " and " + std::to_string(b) + " " + axis_text(directions[b]) +
+                            " are not orthogonal; only orthonormal direction matrices are supported");
+  if (diagonal) {
+    for (int a = 0; a < 3; ++a) out.flip[a] = unit(a, a) < 0.0;
+    out.direction = Mat3f::Identity();
+    return std::nullopt;
+  }
+  // The nearest rotation/reflection (polar factor), so round-off in the file does not accumulate.
+  Eigen::JacobiSVD<Eigen::Matrix3d> svd(unit, Eigen::ComputeFullU | Eigen::ComputeFullV);
+  out.direction = (svd.matrixU() * svd.matrixV().transpose()).cast<float>();
+  out.flip = {false, false, false};
   return std::nullopt;
 }
 
@@ -86,7 +112,9 @@ void flip_data(std::vector<T>& v, const Vec3i& dims, const std::array<bool, 3>& 
 }
 }  // namespace
 
-void apply_flips(Volume& volume, const std::array<bool, 3>& flip, const Vec3f& file_origin_mm) {
+void apply_geometry(Volume& volume, const AxisGeometry& axes, const Vec3f& file_origin_mm) {
+  volume.set_direction(axes.direction);
+  const std::array<bool, 3>& flip = axes.flip;
   Vec3f origin = file_origin_mm;
   for (int a = 0; a < 3; ++a)
     if (flip[a]) origin[a] -= volume.spacing_mm()[a] * static_cast<float>(volume.dims()[a] - 1);
@@ -97,6 +125,59 @@ void apply_flips(Volume& volume, const std::array<bool, 3>& flip, const Vec3f& f
     case VoxelType::UInt16: flip_data(volume.u16(), volume.dims(), flip); break;
     case VoxelType::Float32: flip_data(volume.f32(), volume.dims(), flip); break;
   }
+}
+
+bool read_bytes(const std::filesystem::path& file, std::uintmax_t offset, void* dst, std::size_t count) {
+  std::ifstream in(file, std::ios::binary);
+  if (!in) return false;
+  in.seekg(static_cast<std::streamoff>(offset));
+  in.read(static_cast<char*>(dst), static_cast<std::streamsize>(count));
+  return static_cast<std::size_t>(in.gcount()) == count;
+}
+
+std::optional<VolumeIoError> inflate_exact(const std::filesystem::path& path,
+                                           std::vector<unsigned char>& src, unsigned char* dst,
+                                           std::size_t dst_size) {
+  z_stream zs{};
+  if (inflateInit2(&zs, 15 + 32) != Z_OK)  // +32: accept zlib and gzip headers
+    return io_error(Code::Compression, path, "cannot initialise zlib");
+  struct End {
+    z_stream* z;
+    ~End() { inflateEnd(z); }
+  } end{&zs};
+  std::size_t in_done = 0, out_done = 0;
+  unsigned char scratch[64];
+  for (;;) {
+    const std::size_t in_chunk = std::min<std::size_t>(src.size() - in_done, 1u << 30);
+    zs.next_in = src.data() + in_done;
+    zs.avail_in = static_cast<uInt>(in_chunk);
+    const bool overflow = out_done == dst_size;  // all expected bytes produced; probe for more
+    const std::size_t out_chunk = overflow ? sizeof scratch : std::min<std::size_t>(dst_size - out_done, 1u << 30);
+    zs.next_out = overflow ? scratch : dst + out_done;
+    zs.avail_out = static_cast<uInt>(out_chunk);
+    const int ret = inflate(&zs, Z_NO_FLUSH);
+    in_done += in_chunk - zs.avail_in;
+    const std::size_t produced = out_chunk - zs.avail_out;
+    if (overflow && produced > 0)
+      return io_error(Code::SizeMismatch, path,
+                      "compressed data holds more than the " + std::to_string(dst_size) +
+                          " bytes the header announces");
+    out_done += overflow ? 0 : produced;
+    if (ret == Z_STREAM_END) break;
+    if (ret == Z_OK) continue;
+    if (ret == Z_BUF_ERROR && in_done == src.size())
+      return io_error(Code::TruncatedData, path,
+                      "compressed data ends early (" + std::to_string(out_done) + " of " +
+                          std::to_string(dst_size) + " bytes)");
+    if (ret == Z_BUF_ERROR) continue;
+    return io_error(Code::Compression, path,
+                    std::string("corrupt compressed data: ") + (zs.msg ? zs.msg : "zlib error"));
+  }
+  if (out_done != dst_size)
+    return io_error(Code::TruncatedData, path,
+                    "compressed data holds " + std::to_string(out_done) + " bytes, the header needs " +
+                        std::to_string(dst_size));
+  return std::nullopt;
 }
 
 std::optional<std::uintmax_t> data_file_size(const std::filesystem::path& path) {
@@ -129,13 +210,14 @@ VolumeReadResult read_volume(const std::filesystem::path& path, const ReadOption
   try {
     if (ext == ".nrrd" || ext == ".nhdr") return read_nrrd(path, options);
     if (ext == ".mha" || ext == ".mhd") return read_metaimage(path, options);
+    if (ext == ".nii" || ext == ".nii.gz") return read_nifti(path, options);
   } catch (const std::bad_alloc&) {
     return {Volume{}, io_error(Code::IoError, path, "out of memory while reading")};
   } catch (const std::exception& e) {  // e.g. Volume refusing geometry no check above caught
     return {Volume{}, io_error(Code::BadHeader, path, e.what())};
   }
   return {Volume{}, io_error(Code::UnknownFormat, path,
-                             "unknown extension '" + ext + "' (expected .nrrd, .nhdr, .mha or .mhd)")};
+                             "unknown extension '" + ext + "' (expected .nrrd, .nhdr, .mha, .mhd, .nii or .nii.gz)")};
 }
 
 std::optional<VolumeIoError> write_volume(const Volume& volume, const std::filesystem::path& path,
@@ -146,11 +228,12 @@ std::optional<VolumeIoError> write_volume(const Volume& volume, const std::files
   try {
     if (ext == ".nrrd" || ext == ".nhdr") return write_nrrd(volume, path, compression);
     if (ext == ".mha" || ext == ".mhd") return write_metaimage(volume, path, compression);
+    if (ext == ".nii" || ext == ".nii.gz") return write_nifti(volume, path);
   } catch (const std::bad_alloc&) {
     return io_error(Code::IoError, path, "out of memory while writing");
   }
   return io_error(Code::UnknownFormat, path,
-                  "unknown extension '" + ext + "' (expected .nrrd, .nhdr, .mha or .mhd)");
+                  "unknown extension '" + ext + "' (expected .nrrd, .nhdr, .mha, .mhd, .nii or .nii.gz)");
 }
 
 }  // namespace sonomesh::volume

@@ -137,61 +137,6 @@ bool is_true(const std::string& v) {
   return l == "true" || l == "1" || l == "yes";
 }
 
-// Reads `count` bytes at `offset` of `file` into `dst`.
-bool read_bytes(const std::filesystem::path& file, std::uintmax_t offset, void* dst, std::size_t count) {
-  std::ifstream in(file, std::ios::binary);
-  if (!in) return false;
-  in.seekg(static_cast<std::streamoff>(offset));
-  in.read(static_cast<char*>(dst), static_cast<std::streamsize>(count));
-  return static_cast<std::size_t>(in.gcount()) == count;
-}
-
-// Inflates `src` (zlib or gzip stream) into exactly `dst_size` bytes.
-std::optional<VolumeIoError> inflate_exact(const std::filesystem::path& path,
-                                           std::vector<unsigned char>& src, unsigned char* dst,
-                                           std::size_t dst_size) {
-  z_stream zs{};
-  if (inflateInit2(&zs, 15 + 32) != Z_OK)  // +32: accept zlib and gzip headers
-    return io_error(Code::Compression, path, "cannot initialise zlib");
-  struct End {
-    z_stream* z;
-    ~End() { inflateEnd(z); }
-  } end{&zs};
-  std::size_t in_done = 0, out_done = 0;
-  unsigned char scratch[64];
-  for (;;) {
-    const std::size_t in_chunk = std::min<std::size_t>(src.size() - in_done, 1u << 30);
-    zs.next_in = src.data() + in_done;
-    zs.avail_in = static_cast<uInt>(in_chunk);
-    const bool overflow = out_done == dst_size;  // all expected bytes produced; probe for more
-    const std::size_t out_chunk = overflow ? sizeof scratch : std::min<std::size_t>(dst_size - out_done, 1u << 30);
-    zs.next_out = overflow ? scratch : dst + out_done;
-    zs.avail_out = static_cast<uInt>(out_chunk);
-    const int ret = inflate(&zs, Z_NO_FLUSH);
-    in_done += in_chunk - zs.avail_in;
-    const std::size_t produced = out_chunk - zs.avail_out;
-    if (overflow && produced > 0)
-      return io_error(Code::SizeMismatch, path,
-                      "compressed data holds more than the " + std::to_string(dst_size) +
-                          " bytes the header announces");
-    out_done += overflow ? 0 : produced;
-    if (ret == Z_STREAM_END) break;
-    if (ret == Z_OK) continue;
-    if (ret == Z_BUF_ERROR && in_done == src.size())
-      return io_error(Code::TruncatedData, path,
-                      "compressed data ends early (" + std::to_string(out_done) + " of " +
-                          std::to_string(dst_size) + " bytes)");
-    if (ret == Z_BUF_ERROR) continue;
-    return io_error(Code::Compression, path,
-                    std::string("corrupt compressed data: ") + (zs.msg ? zs.msg : "zlib error"));
-  }
-  if (out_done != dst_size)
-    return io_error(Code::TruncatedData, path,
-                    "compressed data holds " + std::to_string(out_done) + " bytes, the header needs " +
-                        std::to_string(dst_size));
-  return std::nullopt;
-}
-
 template <typename T>
 void swap_bytes(unsigned char* data, std::size_t count) {
   for (std::size_t i = 0; i < count; ++i) std::reverse(data + i * sizeof(T), data + (i + 1) * sizeof(T));
@@ -371,7 +316,7 @@ VolumeReadResult read_metaimage(const std::filesystem::path& path, const ReadOpt
     else if (t == "MET_UINT") to_float<std::uint32_t>(dst, f);
     else if (t == "MET_DOUBLE") to_float<double>(dst, f);
   }
-  apply_flips(volume, axes.flip, file_origin);
+  apply_geometry(volume, axes, file_origin);
   return {std::move(volume), std::nullopt};
 }
 
@@ -413,9 +358,16 @@ std::optional<VolumeIoError> write_metaimage(const Volume& volume, const std::fi
   std::string header = "ObjectType = Image\nNDims = 3\nBinaryData = True\nBinaryDataByteOrderMSB = False\n";
   header += std::string("CompressedData = ") + (packed.empty() ? "False" : "True") + "\n";
   if (!packed.empty()) header += "CompressedDataSize = " + std::to_string(packed.size()) + "\n";
-  // ITK's label for an LPS world space is "RAI" (the direction the indices come from).
-  header += "TransformMatrix = 1 0 0 0 1 0 0 0 1\nOffset = " + vec(volume.origin_mm()) +
-            "\nCenterOfRotation = 0 0 0\nAnatomicalOrientation = RAI\nElementSpacing = " +
+  // TransformMatrix row a = direction of index axis a (ITK). ITK's label for the identity in an
+  // LPS world is "RAI" (where the indices come from); other directions have no such label.
+  const Mat3f& dir = volume.direction();
+  std::string matrix;
+  for (int a = 0; a < 3; ++a)
+    for (int c = 0; c < 3; ++c) matrix += (matrix.empty() ? "" : " ") + num(dir(c, a));
+  const bool identity = dir == Mat3f::Identity();
+  header += "TransformMatrix = " + matrix + "\nOffset = " + vec(volume.origin_mm()) +
+            "\nCenterOfRotation = 0 0 0\n" +
+            (identity ? "AnatomicalOrientation = RAI\n" : "") + "ElementSpacing = " +
             vec(volume.spacing_mm()) + "\nDimSize = " + std::to_string(volume.dims().x()) + " " +
             std::to_string(volume.dims().y()) + " " + std::to_string(volume.dims().z()) +
             "\nElementType = " + met + "\nElementDataFile = " +

@@ -4,7 +4,9 @@
 // every Teem call runs under one mutex. Teem never exits on I/O errors; it returns non-zero and
 // leaves the text in biff. Its reader allocates the whole payload from the header's sizes, so the
 // header is read first (nrrdIoStateSkipData) and validated against ReadOptions and the size of the
-// data on disk before the real read.
+// data on disk before the payload is read. Teem is handed only what nrrd_scan.h validated, through
+// a short path; raw and gzip payloads in one file are read here (Teem's gzip reader leaks its
+// stream state on corrupt data), other layouts by Teem.
 #include <algorithm>
 #include <charconv>
 #include <climits>
@@ -18,6 +20,7 @@
 #include <teem/nrrd.h>
 
 #include "volume/internal/io.h"
+#include "volume/internal/nrrd_scan.h"
 
 namespace sonomesh::volume::internal {
 namespace {
@@ -27,11 +30,12 @@ std::mutex& teem_mutex() {
   return m;
 }
 
-std::string biff_message() {
+std::string biff_message(const ShortPath* short_path = nullptr) {
   char* err = biffGetDone(NRRD);
   if (!err) return "unknown Teem error";
   std::string msg(err);
   std::free(err);
+  if (short_path) msg = short_path->restore(std::move(msg));
   // biff stacks one line per Teem function ("[nrrd] nrrdLoad: ..."); the innermost (last) line
   // names the actual problem, the outer ones only the call chain.
   while (!msg.empty() && (msg.back() == '\n' || msg.back() == ' ')) msg.pop_back();
@@ -40,6 +44,14 @@ std::string biff_message() {
   if (inner.rfind("[nrrd] ", 0) == 0) inner = inner.substr(7);
   return inner;
 }
+
+// Leaves biff's process-global error state empty on every path out of a Teem call sequence
+// (messages not collected by biff_message would otherwise stay allocated until the next error).
+struct BiffGuard {
+  ~BiffGuard() {
+    if (biffCheck(NRRD)) biffDone(NRRD);
+  }
+};
 
 struct NrrdDeleter {
   void operator()(Nrrd* n) const { nrrdNuke(n); }
@@ -52,57 +64,6 @@ struct IoStateDeleter {
 };
 using NrrdPtr = std::unique_ptr<Nrrd, NrrdDeleter>;
 using IoStatePtr = std::unique_ptr<NrrdIoState, IoStateDeleter>;
-
-// What a quick look at the header text tells before Teem parses it.
-struct HeaderScan {
-  std::uintmax_t header_bytes = 0;  // offset of the attached data (after the blank line)
-  bool has_end = false;             // saw the blank line that ends the header
-  std::string data_file;            // "data file:" value, if any
-};
-
-std::optional<VolumeIoError> scan_header(const std::filesystem::path& path, HeaderScan& scan) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) return io_error(Code::IoError, path, "cannot open for reading");
-  constexpr std::size_t kMaxHeader = 1 << 20;
-  std::string text(kMaxHeader, '\0');
-  in.read(text.data(), static_cast<std::streamsize>(text.size()));
-  text.resize(static_cast<std::size_t>(in.gcount()));
-  if (text.rfind("NRRD000", 0) != 0)
-    return io_error(Code::UnknownFormat, path, "not a NRRD file (no NRRD000x magic)");
-  std::size_t pos = 0;
-  while (pos < text.size()) {
-    std::size_t eol = text.find('\n', pos);
-    if (eol == std::string::npos) break;  // header of a detached file may end at EOF
-    std::string line = text.substr(pos, eol - pos);
-    if (!line.empty() && line.back() == '\r') line.pop_back();
-    pos = eol + 1;
-    if (line.empty()) {
-      scan.has_end = true;
-      scan.header_bytes = pos;
-      break;
-    }
-    if (line.rfind("type:", 0) == 0) {
-      std::string value = line.substr(5);
-      value.erase(0, value.find_first_not_of(' '));
-      while (!value.empty() && value.back() == ' ') value.pop_back();
-      if (airEnumVal(nrrdType, value.c_str()) == nrrdTypeUnknown)
-        return io_error(Code::UnsupportedType, path, "unknown voxel type '" + value + "'");
-    }
-    for (const char* key : {"data file:", "datafile:"})
-      if (line.rfind(key, 0) == 0) {
-        scan.data_file = line.substr(std::strlen(key));
-        scan.data_file.erase(0, scan.data_file.find_first_not_of(' '));
-        while (!scan.data_file.empty() && scan.data_file.back() == ' ') scan.data_file.pop_back();
-      }
-    for (char c : line)
-      if (c == '\0') return io_error(Code::BadHeader, path, "binary bytes inside the header");
-  }
-  if (!scan.has_end) {
-    if (text.size() == kMaxHeader) return io_error(Code::BadHeader, path, "header longer than 1 MiB");
-    scan.header_bytes = text.size();
-  }
-  return std::nullopt;
-}
 
 // Teem's voxel types: the three native ones, others converted to float.
 std::optional<VoxelType> target_type(int nrrd_type) {
@@ -169,138 +130,214 @@ std::optional<VolumeIoError> geometry(const std::filesystem::path& path, const N
   return std::nullopt;
 }
 
-}  // namespace
-
-VolumeReadResult read_nrrd(const std::filesystem::path& path, const ReadOptions& options) {
-  HeaderScan scan;
-  if (auto err = scan_header(path, scan)) return {Volume{}, err};
-
-  // Teem opens a single detached data file even when skipping data; say clearly that it is missing.
-  if (!scan.data_file.empty() && scan.data_file.find(' ') == std::string::npos &&
-      scan.data_file.find('%') == std::string::npos && scan.data_file != "LIST") {
-    std::filesystem::path data = scan.data_file;
-    if (data.is_relative()) data = path.parent_path() / data;
-    if (!data_file_size(data))
-      return {Volume{}, io_error(Code::NotFound, path, "data file " + data.string() + " is missing")};
-  }
-
-  std::lock_guard<std::mutex> lock(teem_mutex());
-  nrrdStateVerboseIO = 0;  // library code stays quiet; errors come back through biff
-  // Pass 1: header only.
-  NrrdPtr header(nrrdNew());
-  IoStatePtr hio(nrrdIoStateNew());
-  nrrdIoStateSet(hio.get(), nrrdIoStateSkipData, AIR_TRUE);
-  if (nrrdLoad(header.get(), path.c_str(), hio.get()))
-    return {Volume{}, io_error(Code::BadHeader, path, biff_message())};
-  const Nrrd* h = header.get();
-  if (h->dim != 3)
-    return {Volume{}, io_error(Code::BadDimensions, path,
-                               "has " + std::to_string(h->dim) + " dimensions, need 3")};
-  const auto type = target_type(h->type);
-  if (!type)
-    return {Volume{}, io_error(Code::UnsupportedType, path,
-                               std::string("unsupported voxel type ") + airEnumStr(nrrdType, h->type))};
-  const std::array<long long, 3> dims_ll{static_cast<long long>(std::min<size_t>(h->axis[0].size, LLONG_MAX)),
-                                         static_cast<long long>(std::min<size_t>(h->axis[1].size, LLONG_MAX)),
-                                         static_cast<long long>(std::min<size_t>(h->axis[2].size, LLONG_MAX))};
-  if (auto err = check_dims(path, dims_ll, options)) return {Volume{}, err};
-  AxisGeometry axes;
-  Vec3f origin;
-  if (auto err = geometry(path, h, axes, origin)) return {Volume{}, err};
-
-  // Is the payload on disk big enough for what the header announces?
-  const std::uintmax_t voxels = static_cast<std::uintmax_t>(dims_ll[0]) * dims_ll[1] * dims_ll[2];
-  const std::uintmax_t expected = voxels * nrrdTypeSize[h->type];
-  const NrrdEncoding* enc = hio->encoding;
+// Where the payload is, and whether the bytes on disk can hold what the header announces.
+struct Payload {
+  std::filesystem::path file;   // first (or only) data file
+  std::uintmax_t offset = 0;    // where the data starts in it
   std::uintmax_t available = 0;
-  std::filesystem::path first_data = path;  // where the payload starts (attached: after header)
-  std::uintmax_t first_offset = scan.header_bytes;
-  bool exact = hio->lineSkip == 0 && hio->byteSkip == 0 && hio->dataFSkip == nullptr;
+  bool exact = true;            // one file (or attached), no skips: the size must match exactly
+  bool single = true;           // at most one data file
+};
+
+std::optional<VolumeIoError> locate_payload(const std::filesystem::path& path,
+                                            const HeaderScan& scan, const NrrdIoState* hio,
+                                            Payload& out) {
+  out.file = path;
+  out.offset = scan.header_bytes;
+  out.exact = hio->lineSkip == 0 && hio->byteSkip == 0 && hio->dataFSkip == nullptr;
   const unsigned files = hio->dataFNArr ? hio->dataFNArr->len : 0;
+  out.single = files <= 1 && !hio->dataFNFormat;
   if (files == 0 && !hio->dataFNFormat) {
     const auto size = data_file_size(path);
-    if (!size) return {Volume{}, io_error(Code::IoError, path, "cannot stat")};
-    available = *size > scan.header_bytes ? *size - scan.header_bytes : 0;
-  } else if (files > 0) {
-    const std::filesystem::path dir = hio->path ? std::filesystem::path(hio->path) : path.parent_path();
-    for (unsigned f = 0; f < files; ++f) {
-      std::filesystem::path data = hio->dataFN[f];
-      if (data.is_relative()) data = dir / data;
-      const auto size = data_file_size(data);
-      if (!size)
-        return {Volume{}, io_error(Code::NotFound, path, "data file " + data.string() + " is missing")};
-      available += *size;
-      if (f == 0) first_data = data, first_offset = 0;
-    }
-  } else {
-    exact = false;
-    available = expected;  // numbered data files (%d pattern): Teem checks them itself
+    if (!size) return io_error(Code::IoError, path, "cannot stat");
+    out.available = *size > scan.header_bytes ? *size - scan.header_bytes : 0;
+    return std::nullopt;
   }
+  if (files == 0) {  // numbered data files (%d pattern): Teem checks them itself
+    out.exact = false;
+    out.available = UINTMAX_MAX;
+    return std::nullopt;
+  }
+  // hio->path is the short /proc/self/fd/N directory; resolve against the real one.
+  for (unsigned f = 0; f < files; ++f) {
+    std::filesystem::path data = hio->dataFN[f];
+    if (data.is_relative()) data = path.parent_path() / data;
+    const auto size = data_file_size(data);
+    if (!size) return io_error(Code::NotFound, path, "data file " + data.string() + " is missing");
+    out.available += *size;
+    if (f == 0) out.file = data, out.offset = 0;
+  }
+  return std::nullopt;
+}
+
+std::optional<VolumeIoError> check_payload_size(const std::filesystem::path& path,
+                                                const NrrdEncoding* enc, const Payload& p,
+                                                std::uintmax_t voxels, std::uintmax_t expected) {
   if (enc == nrrdEncodingRaw) {
-    if (available < expected)
-      return {Volume{}, io_error(Code::TruncatedData, path,
-                                 "data has " + std::to_string(available) + " bytes, the header needs " +
-                                     std::to_string(expected))};
-    if (exact && available > expected)
-      return {Volume{}, io_error(Code::SizeMismatch, path,
-                                 "data has " + std::to_string(available) +
-                                     " bytes, more than the header's " + std::to_string(expected))};
+    if (p.available < expected)
+      return io_error(Code::TruncatedData, path,
+                      "data has " + std::to_string(p.available) + " bytes, the header needs " +
+                          std::to_string(expected));
+    if (p.exact && p.available > expected)
+      return io_error(Code::SizeMismatch, path,
+                      "data has " + std::to_string(p.available) + " bytes, more than the header's " +
+                          std::to_string(expected));
   } else if (enc == nrrdEncodingGzip || enc == nrrdEncodingBzip2) {
     if (!enc->available())
-      return {Volume{}, io_error(Code::Compression, path,
-                                 std::string(enc->name) + " encoding not available in this Teem")};
-    // zlib's gz reader passes data without a gzip header through unchanged, so check the magic.
-    if (enc == nrrdEncodingGzip && exact && available >= 2) {
-      unsigned char magic[2] = {0, 0};
-      std::ifstream in(first_data, std::ios::binary);
-      in.seekg(static_cast<std::streamoff>(first_offset));
-      in.read(reinterpret_cast<char*>(magic), 2);
-      if (magic[0] != 0x1f || magic[1] != 0x8b)
-        return {Volume{}, io_error(Code::Compression, path, "gzip encoding, but the data is not gzip")};
-    }
-    if (available * kMaxDeflateRatio + 1024 < expected)
-      return {Volume{}, io_error(Code::TruncatedData, path,
-                                 "compressed data of " + std::to_string(available) +
-                                     " bytes cannot hold the header's " + std::to_string(expected))};
-  } else if (available < voxels) {  // text encodings need at least a character per value
-    return {Volume{}, io_error(Code::TruncatedData, path,
-                               "data too short for " + std::to_string(voxels) + " values")};
+      return io_error(Code::Compression, path,
+                      std::string(enc->name) + " encoding not available in this Teem");
+    if (p.available != UINTMAX_MAX && p.available * kMaxDeflateRatio + 1024 < expected)
+      return io_error(Code::TruncatedData, path,
+                      "compressed data of " + std::to_string(p.available) +
+                          " bytes cannot hold the header's " + std::to_string(expected));
+  } else if (p.available < voxels) {  // text encodings need at least a character per value
+    return io_error(Code::TruncatedData, path,
+                    "data too short for " + std::to_string(voxels) + " values");
   }
+  return std::nullopt;
+}
 
-  // Pass 2: the real read, now that the allocation it makes is known to be sane.
+// Raw or gzip data in one file, read here into `dst` (expected bytes, file byte order).
+std::optional<VolumeIoError> read_payload(const std::filesystem::path& path, const Payload& p,
+                                          bool gzip, unsigned char* dst, std::size_t expected) {
+  if (!gzip) {
+    if (!read_bytes(p.file, p.offset, dst, expected))
+      return io_error(Code::TruncatedData, path, "cannot read " + std::to_string(expected) +
+                                                     " bytes of data from " + p.file.string());
+    return std::nullopt;
+  }
+  std::vector<unsigned char> packed(static_cast<std::size_t>(p.available));
+  if (!read_bytes(p.file, p.offset, packed.data(), packed.size()))
+    return io_error(Code::IoError, path, "cannot read data from " + p.file.string());
+  // zlib would pass data without a gzip header through unchanged, so check the magic.
+  if (packed.size() < 2 || packed[0] != 0x1f || packed[1] != 0x8b)
+    return io_error(Code::Compression, path, "gzip encoding, but the data is not gzip");
+  return inflate_exact(path, packed, dst, expected);
+}
+
+void swap_endian(unsigned char* data, std::size_t bytes, std::size_t size) {
+  if (size < 2) return;
+  for (std::size_t i = 0; i + size <= bytes; i += size) std::reverse(data + i, data + i + size);
+}
+
+void fill_volume(Volume& volume, int nrrd_type, const void* data, std::size_t bytes) {
+  switch (nrrd_type) {
+    case nrrdTypeUChar: std::memcpy(volume.u8().data(), data, bytes); break;
+    case nrrdTypeUShort: std::memcpy(volume.u16().data(), data, bytes); break;
+    case nrrdTypeFloat: std::memcpy(volume.f32().data(), data, bytes); break;
+    case nrrdTypeChar: convert_to_float<signed char>(data, volume.f32()); break;
+    case nrrdTypeShort: convert_to_float<short>(data, volume.f32()); break;
+    case nrrdTypeInt: convert_to_float<int>(data, volume.f32()); break;
+    case nrrdTypeUInt: convert_to_float<unsigned int>(data, volume.f32()); break;
+    case nrrdTypeDouble: convert_to_float<double>(data, volume.f32()); break;
+    default: break;
+  }
+}
+
+// Other layouts (text, bzip2, skips, several data files): Teem reads them, then checks that the
+// file did not change since the header pass.
+std::optional<VolumeIoError> teem_payload(const std::filesystem::path& path, const ShortPath& sp,
+                                          const Nrrd* h, const NrrdEncoding* enc, Volume& volume,
+                                          std::size_t expected) {
   NrrdPtr full(nrrdNew());
   IoStatePtr fio(nrrdIoStateNew());
-  if (nrrdLoad(full.get(), path.c_str(), fio.get())) {
+  if (nrrdLoad(full.get(), sp.path().c_str(), fio.get())) {
     const Code code = (enc == nrrdEncodingGzip || enc == nrrdEncodingBzip2) ? Code::Compression
                       : enc == nrrdEncodingRaw                             ? Code::TruncatedData
                                                                            : Code::BadHeader;
-    return {Volume{}, io_error(code, path, "reading data: " + biff_message())};
+    return io_error(code, path, "reading data: " + biff_message(&sp));
   }
   const Nrrd* n = full.get();
   if (n->type != h->type || n->axis[0].size != h->axis[0].size ||
       n->axis[1].size != h->axis[1].size || n->axis[2].size != h->axis[2].size || !n->data)
-    return {Volume{}, io_error(Code::IoError, path, "file changed while reading")};
+    return io_error(Code::IoError, path, "file changed while reading");
+  fill_volume(volume, n->type, n->data, expected);
+  return std::nullopt;
+}
 
-  const Vec3i dims(static_cast<int>(dims_ll[0]), static_cast<int>(dims_ll[1]), static_cast<int>(dims_ll[2]));
-  Volume volume(dims, axes.spacing_mm, origin, *type);
-  switch (n->type) {
-    case nrrdTypeUChar: std::memcpy(volume.u8().data(), n->data, expected); break;
-    case nrrdTypeUShort: std::memcpy(volume.u16().data(), n->data, expected); break;
-    case nrrdTypeFloat: std::memcpy(volume.f32().data(), n->data, expected); break;
-    case nrrdTypeChar: convert_to_float<signed char>(n->data, volume.f32()); break;
-    case nrrdTypeShort: convert_to_float<short>(n->data, volume.f32()); break;
-    case nrrdTypeInt: convert_to_float<int>(n->data, volume.f32()); break;
-    case nrrdTypeUInt: convert_to_float<unsigned int>(n->data, volume.f32()); break;
-    case nrrdTypeDouble: convert_to_float<double>(n->data, volume.f32()); break;
-    default: break;
+std::optional<VolumeIoError> check_header(const std::filesystem::path& path, const Nrrd* h,
+                                          const ReadOptions& options, Vec3i& dims) {
+  if (h->dim != 3)
+    return io_error(Code::BadDimensions, path, "has " + std::to_string(h->dim) + " dimensions, need 3");
+  if (!target_type(h->type))
+    return io_error(Code::UnsupportedType, path,
+                    std::string("unsupported voxel type ") + airEnumStr(nrrdType, h->type));
+  std::array<long long, 3> dims_ll{};
+  for (int a = 0; a < 3; ++a)
+    dims_ll[a] = static_cast<long long>(std::min<size_t>(h->axis[a].size, LLONG_MAX));
+  if (auto err = check_dims(path, dims_ll, options)) return err;
+  dims = Vec3i(static_cast<int>(dims_ll[0]), static_cast<int>(dims_ll[1]), static_cast<int>(dims_ll[2]));
+  return std::nullopt;
+}
+
+// Teem opens a single detached data file even when skipping data; say clearly that it is missing.
+std::optional<VolumeIoError> check_data_file(const std::filesystem::path& path, const HeaderScan& scan) {
+  if (scan.data_file.empty() || scan.data_file.find(' ') != std::string::npos ||
+      scan.data_file.find('%') != std::string::npos || scan.data_file == "LIST")
+    return std::nullopt;
+  std::filesystem::path data = scan.data_file;
+  if (data.is_relative()) data = path.parent_path() / data;
+  if (!data_file_size(data))
+    return io_error(Code::NotFound, path, "data file " + data.string() + " is missing");
+  return std::nullopt;
+}
+
+}  // namespace
+
+VolumeReadResult read_nrrd(const std::filesystem::path& path, const ReadOptions& options) {
+  HeaderScan scan;
+  if (auto err = scan_nrrd_header(path, scan)) return {Volume{}, err};
+  if (auto err = check_data_file(path, scan)) return {Volume{}, err};
+  const ShortPath sp(path);
+  if (sp.path().empty()) return {Volume{}, io_error(Code::IoError, path, "cannot open its directory")};
+
+  std::lock_guard<std::mutex> lock(teem_mutex());
+  const BiffGuard biff_guard;
+  nrrdStateVerboseIO = 0;  // library code stays quiet; errors come back through biff
+  NrrdPtr header(nrrdNew());  // pass 1: the header only
+  IoStatePtr hio(nrrdIoStateNew());
+  nrrdIoStateSet(hio.get(), nrrdIoStateSkipData, AIR_TRUE);
+  if (nrrdLoad(header.get(), sp.path().c_str(), hio.get()))
+    return {Volume{}, io_error(Code::BadHeader, path, biff_message(&sp))};
+  const Nrrd* h = header.get();
+  Vec3i dims;
+  if (auto err = check_header(path, h, options, dims)) return {Volume{}, err};
+  AxisGeometry axes;
+  Vec3f origin;
+  if (auto err = geometry(path, h, axes, origin)) return {Volume{}, err};
+
+  const std::uintmax_t voxels = static_cast<std::uintmax_t>(dims.x()) * dims.y() * dims.z();
+  const std::size_t expected = voxels * nrrdTypeSize[h->type];
+  const NrrdEncoding* enc = hio->encoding;
+  Payload payload;
+  if (auto err = locate_payload(path, scan, hio.get(), payload)) return {Volume{}, err};
+  if (auto err = check_payload_size(path, enc, payload, voxels, expected)) return {Volume{}, err};
+
+  Volume volume(dims, axes.spacing_mm, origin, *target_type(h->type));
+  const bool here = (enc == nrrdEncodingRaw || enc == nrrdEncodingGzip) && payload.exact && payload.single;
+  if (here) {  // native types straight into the volume, the others through a conversion buffer
+    std::vector<unsigned char> converted;
+    unsigned char* dst = nullptr;
+    switch (h->type) {
+      case nrrdTypeUChar: dst = volume.u8().data(); break;
+      case nrrdTypeUShort: dst = reinterpret_cast<unsigned char*>(volume.u16().data()); break;
+      case nrrdTypeFloat: dst = reinterpret_cast<unsigned char*>(volume.f32().data()); break;
+      default: converted.resize(expected), dst = converted.data();
+    }
+    if (auto err = read_payload(path, payload, enc == nrrdEncodingGzip, dst, expected))
+      return {Volume{}, err};
+    if (hio->endian != airEndianUnknown && hio->endian != airMyEndian())
+      swap_endian(dst, expected, nrrdTypeSize[h->type]);
+    if (!converted.empty()) fill_volume(volume, h->type, dst, expected);
+  } else if (auto err = teem_payload(path, sp, h, enc, volume, expected)) {
+    return {Volume{}, err};
   }
-  full.reset();
-  apply_flips(volume, axes.flip, origin);
+  apply_geometry(volume, axes, origin);
   return {std::move(volume), std::nullopt};
 }
 
 std::optional<VolumeIoError> write_nrrd(const Volume& volume, const std::filesystem::path& path,
-                                        Compression compression) {
+                                        Compression compression, const KeyValues& key_values) {
   int type = nrrdTypeFloat;
   void* data = nullptr;
   // Teem wraps the buffer without copying and only reads it when saving.
@@ -314,6 +351,7 @@ std::optional<VolumeIoError> write_nrrd(const Volume& volume, const std::filesys
   const Vec3f& o = volume.origin_mm();
 
   std::lock_guard<std::mutex> lock(teem_mutex());
+  const BiffGuard biff_guard;
   std::unique_ptr<Nrrd, NixDeleter> nrrd(nrrdNew());
   if (nrrdWrap_va(nrrd.get(), data, type, 3, static_cast<size_t>(d.x()), static_cast<size_t>(d.y()),
                   static_cast<size_t>(d.z())))
@@ -323,12 +361,20 @@ std::optional<VolumeIoError> write_nrrd(const Volume& volume, const std::filesys
     return io_error(Code::IoError, path, biff_message());
   const double origin[3] = {decimal(o.x()), decimal(o.y()), decimal(o.z())};
   if (nrrdSpaceOriginSet(nrrd.get(), origin)) return io_error(Code::IoError, path, biff_message());
-  double dx[NRRD_SPACE_DIM_MAX] = {decimal(s.x()), 0, 0}, dy[NRRD_SPACE_DIM_MAX] = {0, decimal(s.y()), 0},
-         dz[NRRD_SPACE_DIM_MAX] = {0, 0, decimal(s.z())};
-  nrrdAxisInfoSet_va(nrrd.get(), nrrdAxisInfoSpaceDirection, dx, dy, dz);
+  // Space direction of axis a = spacing times the unit direction (column a of direction()).
+  double dirs[3][NRRD_SPACE_DIM_MAX] = {};
+  for (int a = 0; a < 3; ++a)
+    for (int c = 0; c < 3; ++c) {
+      const float v = volume.direction()(c, a);
+      dirs[a][c] = v == 0.0f ? 0.0 : v == 1.0f ? decimal(s[a]) : decimal(s[a]) * decimal(v);
+    }
+  nrrdAxisInfoSet_va(nrrd.get(), nrrdAxisInfoSpaceDirection, dirs[0], dirs[1], dirs[2]);
   nrrdAxisInfoSet_va(nrrd.get(), nrrdAxisInfoKind, nrrdKindSpace, nrrdKindSpace, nrrdKindSpace);
   nrrdAxisInfoSet_va(nrrd.get(), nrrdAxisInfoCenter, nrrdCenterCell, nrrdCenterCell, nrrdCenterCell);
 
+  for (const auto& [key, value] : key_values)
+    if (nrrdKeyValueAdd(nrrd.get(), key.c_str(), value.c_str()))
+      return io_error(Code::IoError, path, biff_message());
   IoStatePtr nio(nrrdIoStateNew());
   if (compression == Compression::Gzip) {
     if (!nrrdEncodingGzip->available())
