@@ -38,7 +38,7 @@ wait "$probe" || true
 elapsed=$(( $(date +%s) - start_s ))
 
 seqs="$work/sequences"
-grep -o '"sequence":[0-9]*' "$out/journal.jsonl" | cut -d: -f2 | sort -n >"$seqs"
+grep -o '"sequence":[0-9][0-9]*' "$out/journal.jsonl" | cut -d: -f2 | sort -n >"$seqs"
 distinct=$(uniq <"$seqs" | wc -l)
 doubled=$(uniq -d <"$seqs" | wc -l)
 first=$(head -1 "$seqs") last=$(tail -1 "$seqs")

@@ -71,6 +71,25 @@ def metaimage():
         "\x00\x01" * 4)
 
 
+def nifti():
+    # NIfTI-1 single file: 348-byte header, 4 bytes extension flag, data at vox_offset 352.
+    def nii(dims, datatype, bitpix, data, qform=1, pixdim=(0.5, 0.5, 1.0)):
+        h = bytearray(348)
+        struct.pack_into("<i", h, 0, 348)
+        struct.pack_into("<8h", h, 40, 3, *dims, 1, 1, 1, 1)
+        struct.pack_into("<hh", h, 70, datatype, bitpix)
+        struct.pack_into("<8f", h, 76, 1.0, *pixdim, 1, 1, 1, 1)
+        struct.pack_into("<f", h, 108, 352.0)
+        struct.pack_into("<f", h, 112, 1.0)  # scl_slope
+        struct.pack_into("<hh", h, 252, qform, 0)
+        struct.pack_into("<6f", h, 256, 0, 0, 0, 1.0, 2.0, 3.0)  # quatern b c d, offsets
+        h[344:348] = b"n+1\0"
+        return bytes(h) + b"\0\0\0\0" + data
+    put("fuzz_nifti", "uint8", nii((4, 3, 2), 2, 8, bytes(range(24))))
+    put("fuzz_nifti", "int16", nii((2, 2, 2), 4, 16, struct.pack("<8h", *range(8))))
+    put("fuzz_nifti", "float_noqform", nii((2, 2, 1), 16, 32, struct.pack("<4f", 0, 1, 2, 3), 0))
+
+
 def ply():
     tet_v = [(0, 0, 0), (1, 0, 0), (0, 1, 0), (0, 0, 1)]
     tet_f = [(0, 2, 1), (0, 1, 3), (0, 3, 2), (1, 2, 3)]
@@ -137,6 +156,7 @@ if __name__ == "__main__":
     probe_stream()
     nrrd()
     metaimage()
+    nifti()
     ply()
     run_config()
     seed_body()

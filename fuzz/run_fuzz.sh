@@ -7,6 +7,8 @@ fuzzer="$1" seeds="$2" work="$3" seconds="$4"
 shift 4
 mkdir -p "$work/corpus" "$work/artifacts"
 # detect_leaks stays on: a leak on a bad input is a finding (a daemon reads many files).
+# The readers take paths: their files go to memory, not to a disk shared with the builds.
+[ -d /dev/shm ] && export TMPDIR="${TMPDIR:-/dev/shm}"
 export ASAN_OPTIONS="${ASAN_OPTIONS:-abort_on_error=1:detect_leaks=1}"
 export UBSAN_OPTIONS="${UBSAN_OPTIONS:-print_stacktrace=1:halt_on_error=1}"
 exec "$fuzzer" -max_total_time="$seconds" -timeout=20 -rss_limit_mb=2048 -max_len=65536 \

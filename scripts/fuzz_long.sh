@@ -11,7 +11,7 @@ build="${SONOMESH_BUILD_DIR:-$root/build-asan}"
 runs="${1:-1000000}" seconds="${2:-3600}"
 shift $(( $# > 2 ? 2 : $# ))
 targets=("$@")
-[ ${#targets[@]} -eq 0 ] && targets=(fuzz_probe_stream fuzz_nrrd fuzz_metaimage fuzz_ply
+[ ${#targets[@]} -eq 0 ] && targets=(fuzz_probe_stream fuzz_nrrd fuzz_metaimage fuzz_nifti fuzz_ply
                                      fuzz_run_config fuzz_seed_body)
 status=0
 for t in "${targets[@]}"; do

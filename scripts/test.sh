@@ -26,7 +26,7 @@ CC=clang CXX=clang++ cmake -S "$root" -B "$build" -DCMAKE_BUILD_TYPE=Release \
   -DSONOMESH_SANITIZE="$sanitize" -DSONOMESH_FUZZ=ON >/dev/null
 targets=()
 if [ "$fuzz_only" = 1 ]; then
-  targets=(--target fuzz_probe_stream fuzz_nrrd fuzz_metaimage fuzz_ply fuzz_run_config
+  targets=(--target fuzz_probe_stream fuzz_nrrd fuzz_metaimage fuzz_nifti fuzz_ply fuzz_run_config
            fuzz_seed_body)
   set -- -L fuzz "$@"
 fi
