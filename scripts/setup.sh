@@ -25,6 +25,8 @@ packages=(
   libgtest-dev libgmock-dev libbenchmark-dev umockdev libumockdev-dev
   # the live page's browser test (headless, WebGL through SwiftShader)
   chromium
+  # the sanitizer build and the libFuzzer targets (SONOMESH_SANITIZE / SONOMESH_FUZZ in test.sh)
+  clang libclang-rt-14-dev
 )
 
 missing=()

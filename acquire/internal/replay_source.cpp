@@ -156,7 +156,7 @@ class FileListReplaySource final : public PacedSource {
     }
     const std::uint64_t sequence = index_;
     const fs::path& file = files_[index_++];
-    auto volume = reader_(file);
+    auto volume = read(file);
     if (!volume) {
       AcquireError e = volume.error();
       e.code = AcquireError::Code::BadRecord;
@@ -181,6 +181,17 @@ class FileListReplaySource final : public PacedSource {
   }
 
  private:
+  // A bad file is one rejected record, never the end of the run: whatever the reader throws
+  // (an allocation refused, a library's exception) becomes its error.
+  tl::expected<RawVolume, AcquireError> read(const fs::path& file) {
+    try {
+      return reader_(file);
+    } catch (const std::exception& e) {
+      return tl::make_unexpected(
+          AcquireError{AcquireError::Code::BadRecord, 0, std::string("cannot read: ") + e.what(), {}, 0});
+    }
+  }
+
   std::vector<fs::path> files_;
   VolumeFileReader reader_;
   std::size_t index_ = 0;

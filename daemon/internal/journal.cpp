@@ -1,13 +1,18 @@
 #include "daemon/internal/journal.h"
 
 #include <fcntl.h>
+#include <spdlog/spdlog.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cerrno>
 #include <chrono>
 #include <cstring>
 #include <ctime>
+#include <fstream>
 #include <stdexcept>
+
+#include "daemon/internal/atomic_file.h"
 
 namespace sonomesh::daemon {
 
@@ -30,7 +35,73 @@ std::string utc_timestamp() {
   return buf;
 }
 
-JsonlFile::JsonlFile(const std::filesystem::path& path) : path_(path) {
+namespace {
+
+// A line is whole if it is a JSON object: every line this file type writes is one.
+std::optional<nlohmann::json> whole_line(const std::string& text) {
+  auto j = nlohmann::json::parse(text, nullptr, /*allow_exceptions=*/false);
+  if (j.is_discarded() || !j.is_object()) return std::nullopt;
+  return j;
+}
+
+// Copies the kept lines to a temporary, renames it over `path`; bad ones go to `torn`.
+void rewrite_without_bad_lines(const std::filesystem::path& path,
+                               const std::filesystem::path& torn) {
+  std::ifstream in(path, std::ios::binary);
+  std::ofstream aside(torn, std::ios::binary | std::ios::app);
+  write_atomically(path, [&](const std::filesystem::path& tmp) {
+    std::ofstream out(tmp, std::ios::binary | std::ios::trunc);
+    std::string text;
+    while (std::getline(in, text)) {
+      (whole_line(text) ? out : aside) << text << '\n';
+    }
+    out.flush();
+    if (!out) throw std::runtime_error("cannot write " + tmp.string());
+  });
+  aside.flush();
+  if (!aside) throw std::runtime_error("cannot write " + torn.string());
+}
+
+}  // namespace
+
+JsonlRepair repair_jsonl(const std::filesystem::path& path,
+                         const std::function<void(const nlohmann::json&)>& on_line) {
+  JsonlRepair repair;
+  std::error_code ec;
+  if (!std::filesystem::exists(path, ec)) return repair;
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw std::runtime_error("cannot read " + path.string() + ": " + std::strerror(errno));
+  // A torn write is always the last line, but a crash of the file system can leave garbage (NUL
+  // blocks) anywhere: check every line, and rewrite only when something is wrong.
+  bool newline_missing = false;
+  std::string text;
+  while (std::getline(in, text)) {
+    newline_missing = in.eof();
+    if (auto line = whole_line(text)) {
+      ++repair.whole_lines;
+      if (on_line) on_line(*line);
+    } else {
+      ++repair.set_aside;
+    }
+  }
+  if (in.bad()) throw std::runtime_error("cannot read " + path.string());
+  in.close();
+  if (repair.set_aside > 0 || newline_missing) {
+    if (repair.set_aside > 0) repair.set_aside_path = path.string() + ".torn";
+    rewrite_without_bad_lines(path, path.string() + ".torn");
+  }
+  return repair;
+}
+
+JsonlFile::JsonlFile(const std::filesystem::path& path,
+                     const std::function<void(const nlohmann::json&)>& on_line)
+    : path_(path), repair_(repair_jsonl(path, on_line)) {
+  if (repair_.set_aside > 0) {
+    spdlog::warn(
+        "{}: {} torn or unreadable line(s) set aside in {} (a crash or power loss "
+        "mid-write); {} whole line(s) kept",
+        path.string(), repair_.set_aside, repair_.set_aside_path.string(), repair_.whole_lines);
+  }
   fd_ = ::open(path.c_str(), O_WRONLY | O_CREAT | O_APPEND | O_CLOEXEC, 0644);
   if (fd_ < 0) {
     throw std::runtime_error("cannot open " + path.string() + ": " + std::strerror(errno));
@@ -65,16 +136,98 @@ void JsonlFile::append(nlohmann::json line) {
 
 const char* to_string(JournalStatus status) {
   switch (status) {
-    case JournalStatus::Processed: return "processed";
-    case JournalStatus::Skipped: return "skipped";
-    case JournalStatus::Failed: return "failed";
-    case JournalStatus::Rejected: return "rejected";
-    case JournalStatus::Lost: return "lost";
+    case JournalStatus::Processed:
+      return "processed";
+    case JournalStatus::Skipped:
+      return "skipped";
+    case JournalStatus::Failed:
+      return "failed";
+    case JournalStatus::Rejected:
+      return "rejected";
+    case JournalStatus::Lost:
+      return "lost";
   }
   return "unknown";
 }
 
-Journal::Journal(const std::filesystem::path& path) : file_(path) {}
+std::vector<std::pair<std::uint64_t, std::uint64_t>> Journal::holes_before() const {
+  std::vector<std::pair<std::uint64_t, std::uint64_t>> holes;
+  std::optional<std::uint64_t> end;  // one past the previous range
+  for (const auto& [first, last] : earlier_.ranges) {
+    if (end && first > *end) holes.emplace_back(*end, first - *end);
+    end = last + 1;
+  }
+  return holes;
+}
+
+void Journal::Earlier::add(const nlohmann::json& line) {
+  const auto e = line.find("epoch");
+  const std::uint64_t line_epoch =
+      e != line.end() && e->is_number_unsigned() ? e->get<std::uint64_t>() : 0;
+  if (line_epoch > epoch) ranges.clear();
+  if (line_epoch < epoch) return;
+  epoch = line_epoch;
+  const auto s = line.find("sequence");
+  if (s == line.end() || !s->is_number_unsigned()) return;  // a rejected record without one
+  const std::uint64_t seq = s->get<std::uint64_t>();
+  // Merge [seq, seq] into the ranges: join the one ending at seq - 1 and the one starting at
+  // seq + 1.
+  auto next = ranges.upper_bound(seq);
+  if (next != ranges.begin()) {
+    auto prev = std::prev(next);
+    if (prev->second >= seq) return;  // already in
+    if (prev->second + 1 == seq) {
+      prev->second = seq;
+      if (next != ranges.end() && next->first == seq + 1) {
+        prev->second = next->second;
+        ranges.erase(next);
+      }
+      return;
+    }
+  }
+  if (next != ranges.end() && next->first == seq + 1) {
+    const std::uint64_t last = next->second;
+    ranges.erase(next);
+    ranges.emplace(seq, last);
+    return;
+  }
+  ranges.emplace(seq, seq);
+}
+
+Journal::Journal(const std::filesystem::path& path)
+    : file_(path, [this](const nlohmann::json& line) { earlier_.add(line); }) {
+  epoch_ = earlier_.epoch;
+  if (!earlier_.ranges.empty()) {
+    // The newest kClaimWindow sequences become claims; everything further down is below the
+    // floor, as claim_locked would have folded it in the earlier run.
+    const std::uint64_t top = earlier_.ranges.rbegin()->second;
+    floor_ = top > kClaimWindow ? top - kClaimWindow : 0;
+    for (const auto& [first, last] : earlier_.ranges) {
+      for (std::uint64_t s = std::max(first, floor_); s <= last && s >= first; ++s) {
+        claimed_.insert(s);
+      }
+    }
+  }
+  if (file_.repair().whole_lines > 0) {
+    spdlog::info(
+        "{}: continuing after {} line(s) of an earlier run (epoch {}, {} sequence "
+        "range(s))",
+        path.string(), file_.repair().whole_lines, epoch_, earlier_.ranges.size());
+  }
+}
+
+bool Journal::written_before(std::uint64_t sequence) const {
+  std::lock_guard lock(mutex_);
+  auto next = earlier_.ranges.upper_bound(sequence);
+  if (next == earlier_.ranges.begin()) return false;
+  return std::prev(next)->second >= sequence;
+}
+
+std::optional<std::uint64_t> Journal::highest_before() const {
+  std::lock_guard lock(mutex_);
+  if (earlier_.ranges.empty()) return std::nullopt;
+  return earlier_.ranges.rbegin()->second;
+}
 
 bool Journal::claim_locked(std::uint64_t sequence) {
   if (sequence < floor_) return false;

@@ -121,6 +121,18 @@ LiveRunner::LiveRunner(RunConfig config, std::unique_ptr<acquire::Source> source
   if (stale > 0) spdlog::warn("removed {} temporary file(s) left by an earlier run", stale);
   journal_ = std::make_unique<Journal>(out_ / "journal.jsonl");
   events_ = std::make_unique<JsonlFile>(out_ / "events.jsonl");
+  // A restart on the same out dir goes on where the journal ends (same epoch, same sequences).
+  epoch_ = journal_->epoch();
+  highest_sequence_ = journal_->highest_before();
+  resume_gap_pending_ = live_ && highest_sequence_.has_value();
+  // What a killed earlier run had in hand (received, no line yet) a live probe will not send
+  // again; replay sends it again and it is processed then.
+  if (live_) {
+    for (const auto& [first, count] : journal_->holes_before()) {
+      stats_.count(JournalStatus::Lost,
+                   journal_->write_lost(first, count, "in hand when an earlier run stopped"));
+    }
+  }
   queue_ = std::make_unique<VolumeQueue>(
       config_.queue_capacity, live_ ? VolumeQueue::Mode::KeepNewest : VolumeQueue::Mode::Block);
   write_queue_ = std::make_unique<WriteQueue>();
@@ -318,6 +330,7 @@ void LiveRunner::handle_volume(acquire::RawVolume raw, Clock::time_point receive
     }
   }
   const std::uint64_t seq = raw.sequence;
+  if (done_by_earlier_run(seq)) return;
   if (!journal_->claim(seq)) {
     const bool resend = highest_sequence_ && seq != 0 && seq + kResendWindow > *highest_sequence_;
     if (resend) {
@@ -344,6 +357,28 @@ void LiveRunner::handle_volume(acquire::RawVolume raw, Clock::time_point receive
     }
   }
   stats_.set_queue_depth(queue_->size(), queue_->capacity());
+}
+
+// A restart on an out dir that has a journal. Replay delivers the same sequences again: those
+// with a line from the earlier run are dropped (counted, logged once). A live probe went on while
+// the daemon was down: the sequences between the journal's last and the first one now received
+// get `lost` lines, as a gap reported by the source would.
+bool LiveRunner::done_by_earlier_run(std::uint64_t seq) {
+  if (!live_ && journal_->written_before(seq)) {
+    if (earlier_done_++ == 0) {
+      spdlog::info("replay: sequence {} and any others with a journal line from an earlier run "
+                   "are not processed again", seq);
+    }
+    return true;
+  }
+  if (!resume_gap_pending_) return false;
+  resume_gap_pending_ = false;
+  const std::uint64_t last = *journal_->highest_before();
+  if (seq <= last + 1) return false;  // no gap, or the probe restarted too (a new epoch)
+  handle_error(AcquireError{AcquireError::Code::Lost, 0,
+                            "not received while the daemon was not running", last + 1,
+                            seq - last - 1});
+  return false;
 }
 
 void LiveRunner::handle_error(const AcquireError& error) {

@@ -69,6 +69,7 @@ class LiveRunner {
   void writer_loop();
   void handle_volume(acquire::RawVolume raw, std::chrono::steady_clock::time_point received);
   void handle_error(const acquire::AcquireError& error);
+  bool done_by_earlier_run(std::uint64_t sequence);
   void process_one(QueuedVolume item);
   void write_one(WriteJob& job);
   void journal_skipped(const QueuedVolume& item, const std::string& reason,
@@ -110,6 +111,9 @@ class LiveRunner {
   std::optional<std::uint64_t> highest_sequence_;
   std::optional<std::chrono::steady_clock::time_point> outage_started_;
   std::uint64_t epoch_ = 0;
+  // A restart on an out dir with a journal: its first live volume checks for the gap since.
+  bool resume_gap_pending_ = false;
+  std::uint64_t earlier_done_ = 0;  // replayed volumes dropped: an earlier run wrote their line
 
   std::mutex written_mutex_;
   std::vector<std::string> written_stems_;  // for keep_meshes pruning, oldest first

@@ -9,6 +9,7 @@
 
 #include <cerrno>
 #include <cstring>
+#include <memory>
 #include <stdexcept>
 
 namespace sonomesh::hil {
@@ -65,7 +66,9 @@ void FakeV4l2Device::add_device() {
     g_clear_error(&error);
     throw std::runtime_error("FakeV4l2Device: add device: " + msg);
   }
-  backing_path_ = std::string(umockdev_testbed_get_root_dir(testbed_)) + "/dev/" + n;
+  // The root directory string is the caller's to free (transfer full).
+  std::unique_ptr<gchar, decltype(&g_free)> root(umockdev_testbed_get_root_dir(testbed_), g_free);
+  backing_path_ = std::string(root.get()) + "/dev/" + n;
   if (backing_fd_ >= 0) ::close(backing_fd_);
   backing_fd_ = ::open(backing_path_.c_str(), O_RDWR | O_CLOEXEC);
   if (backing_fd_ < 0) throw std::runtime_error("FakeV4l2Device: open backing file " + backing_path_);
