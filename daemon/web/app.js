@@ -175,9 +175,18 @@ function frameMesh(geometry) {
 
 let sliceInfo = null;
 
+// Each slice is fetched off screen and shown once it decoded, so a failed load (the daemon
+// restarting) keeps the last good image instead of a broken one.
 function loadSlices(sequence) {
   live.slicesSequence = sequence;
-  for (const axis of AXES) $('slice-' + axis).src = '/slices/' + axis + '.png?seq=' + sequence;
+  for (const axis of AXES) {
+    const next = new Image();
+    next.onload = () => {
+      $('slice-' + axis).src = next.src;
+      live.slicesLoaded += 1;
+    };
+    next.src = '/slices/' + axis + '.png?seq=' + sequence;
+  }
   fetch('/slices/info', { cache: 'no-store' }).then((r) => r.json())
       .then((info) => { sliceInfo = info; }).catch(() => {});
 }
@@ -245,7 +254,6 @@ function connect() {
 
 for (const axis of AXES) {
   const img = $('slice-' + axis);
-  img.addEventListener('load', () => { live.slicesLoaded += 1; });
   img.addEventListener('click', (e) => onSliceClick(axis, e));
 }
 initView();

@@ -97,6 +97,28 @@ TEST(LivePage, DrawsMeshAndSlicesAndUpdatesWithoutReload) {
       << first.dump() << " -> " << state.dump();
   EXPECT_GT(state["processed"].get<int>(), first["processed"].get<int>());
   EXPECT_EQ(state["sourceState"], "connected");
+
+  // A click on the axial slice's centre seeds the next volume there (POST /seed).
+  ASSERT_TRUE(browser.evaluate(*session,
+                               "(() => { const img = document.getElementById('slice-axial');"
+                               " const r = img.getBoundingClientRect();"
+                               " img.dispatchEvent(new MouseEvent('click', {bubbles: true,"
+                               " clientX: r.x + r.width / 2, clientY: r.y + r.height / 2}));"
+                               " return true; })()"));
+  nlohmann::json seed_event;
+  EXPECT_TRUE(wait_until(
+      [&] {
+        for (const auto& e : read_jsonl(dir / "out" / "events.jsonl")) {
+          if (e.value("event", "") == "seed_set") seed_event = e;
+        }
+        return seed_event.is_object();
+      },
+      20s, 100ms));
+  if (seed_event.is_object()) {
+    // The 48³ volume of 0.5 mm voxels: the centre column is near 12 mm in x and y.
+    EXPECT_NEAR(seed_event["seed_mm"][0].get<double>(), 11.75, 0.6);
+    EXPECT_NEAR(seed_event["seed_mm"][1].get<double>(), 11.75, 0.6);
+  }
   daemon.signal(SIGINT);
   EXPECT_EQ(daemon.wait(30s), 0) << daemon.stderr_text();
 }
