@@ -18,6 +18,8 @@ packages=(
   libcli11-dev libtomlplusplus-dev nlohmann-json3-dev libspdlog-dev libfmt-dev libcpp-httplib-dev
   # tests and benchmarks (HIL tests run the real libusb/V4L2 paths under umockdev)
   libgtest-dev libgmock-dev libbenchmark-dev umockdev libumockdev-dev
+  # the `format` test (scripts/check_format.sh)
+  clang-format-14
 )
 
 missing=()
