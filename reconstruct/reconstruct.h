@@ -3,7 +3,7 @@
 /// @brief Second step of the two-step segmentation (method.md §4-6): opening the balloon at its
 /// self-intersections, Kazhdan's FFT reconstruction of an indicator function from oriented points
 /// (Kazhdan, SGP 2005), marching cubes, the component around the seed, topology checks, label
-/// volumes and mesh files.
+/// volumes (the mesh types, topology and files are mesh/mesh.h).
 ///
 /// Positions are in millimetres throughout. Caller bugs (mismatched array lengths, indices out of
 /// range, bad options) throw std::invalid_argument naming the argument; numerical outcomes (seed
@@ -17,14 +17,30 @@
 #include <string>
 #include <vector>
 
-#include "segment/mesh.h"
+#include "mesh/mesh.h"
 #include "volume/volume.h"
 
 namespace sonomesh::reconstruct {
 
-using segment::Mesh;
-using segment::PointCloud;
-using segment::StopReason;
+// The mesh types, topology, normals and files live in mesh/ and keep their reconstruct:: names.
+using mesh::analyze_topology;
+using mesh::component_enclosing;
+using mesh::connected_components;
+using mesh::enclosed_volume_ml;
+using mesh::encloses;
+using mesh::Mesh;
+using mesh::MeshIoError;
+using mesh::MeshReadResult;
+using mesh::oriented_samples;
+using mesh::PointCloud;
+using mesh::read_ply;
+using mesh::StopReason;
+using mesh::Topology;
+using mesh::write_balloon_ply;
+using mesh::write_mesh;
+using mesh::write_obj;
+using mesh::write_ply;
+using mesh::write_stl;
 using volume::Vec3f;
 
 // ---------------------------------------------------------------------------------------------
@@ -39,10 +55,6 @@ using volume::Vec3f;
 /// @throws std::invalid_argument if stop.size() != balloon.vertices.size() or a triangle indexes
 ///         a vertex that does not exist.
 PointCloud open_balloon(const Mesh& balloon, const std::vector<StopReason>& stop);
-
-/// Vertex samples of a closed mesh: outward unit normals (eq. 2) and one-third-area weights.
-/// @throws std::invalid_argument if a triangle indexes a vertex that does not exist.
-PointCloud oriented_samples(const Mesh& mesh);
 
 // ---------------------------------------------------------------------------------------------
 // Kazhdan's FFT reconstruction.
@@ -64,14 +76,12 @@ struct PoissonOptions {
   // many cells. At 4, χ on the axis of a round tunnel is ~0.2 of its inside value, clear of the
   // iso-value (~0.5) with room for sparse samples. Raise it with smoothing_cells. 0 = always
   // cell_mm, the default: the finer grid also keeps the small gaps the opening leaves where a
-  // balloon's fronts met off the tunnel, as extra handles. Measured with sonomeshd run on the
-  // breathing cyst-needle at 96³: genus 2-5 on 9 of 18 volumes at 4, genus 1 on 27 of 27 at 0.
-  // At 4 the static 64³ cyst-needle keeps its 2-voxel tunnel (genus 1 on seeds 1-4, 0 at 0).
+  // balloon's fronts met off the tunnel, as extra handles (docs/tuning.md).
   float min_feature_cells = 0.0f;
   float min_cell_fraction = 1.0f / 3.0f;  // the thin-feature cell stops at this fraction of
                                           // cell_mm (so at most 27x the cells), in [0.1, 1]
-  int max_grid_dim = 256;          // the cell grows when an axis would need more cells than this
-  int fft_threads = 2;             // FFTW threads (the target machine has two cores)
+  int max_grid_dim = 256;  // the cell grows when an axis would need more cells than this
+  int fft_threads = 2;     // FFTW threads (the target machine has two cores)
   DivergenceMode divergence = DivergenceMode::Spectral;
   bool measure_fft_plans = false;  // FFTW_MEASURE: slow first plan per grid size, faster after
 };
@@ -83,7 +93,8 @@ struct IndicatorGrid {
   float cell_mm = 0.0f;  // the cell actually used: options.cell_mm, finer for a thin feature,
                          // coarser where max_grid_dim forced it
   float feature_mm = std::numeric_limits<float>::infinity();  // narrowest feature found; infinity:
-                         // none within min_feature_cells · cell_mm (or the search is off)
+                                                              // none within min_feature_cells ·
+                                                              // cell_mm (or the search is off)
 };
 
 /// Narrowest feature the oriented samples describe, in mm. A sample's local width is the distance
@@ -119,34 +130,6 @@ IndicatorGrid poisson_indicator(const PointCloud& samples, const PoissonOptions&
 /// @throws std::invalid_argument if the volume is not Float32 or has fewer than 2 samples per axis.
 Mesh marching_cubes(const volume::Volume& field, float iso);
 
-struct Topology {
-  int components = 0;  // connected by shared vertices
-  int vertices = 0;    // referenced vertices
-  int edges = 0;
-  int faces = 0;
-  int euler = 0;            // V − E + F
-  int genus = 0;            // Σ over components of (2 − χ_c)/2; meaningful when watertight
-  bool watertight = false;  // every edge has exactly two faces with opposite orientations
-  bool manifold = false;    // watertight and every vertex has one fan of triangles around it
-  double volume_ml = 0.0;   // enclosed volume (divergence theorem), mm³/1000; > 0 when outward
-};
-
-/// Counts and checks of a triangle mesh. @throws std::invalid_argument on out-of-range indices.
-Topology analyze_topology(const Mesh& mesh);
-
-/// Topology::volume_ml alone: for a mesh whose vertices moved but whose connectivity did not.
-double enclosed_volume_ml(const Mesh& mesh);
-
-/// Splits a mesh into its connected components (by shared vertices), vertices renumbered.
-std::vector<Mesh> connected_components(const Mesh& mesh);
-
-/// True if p_mm lies inside the closed mesh (ray parity along a slightly jittered direction).
-bool encloses(const Mesh& closed_mesh, const Vec3f& p_mm);
-
-/// The component that encloses seed_mm; if several do, the smallest of them (the innermost
-/// shell); if none does, the largest one (by triangle count) and *seed_enclosed = false.
-Mesh component_enclosing(const Mesh& mesh, const Vec3f& seed_mm, bool* seed_enclosed = nullptr);
-
 // ---------------------------------------------------------------------------------------------
 // The whole second step.
 
@@ -173,39 +156,5 @@ SurfaceResult reconstruct_surface(const PointCloud& samples, const Vec3f& seed_m
 /// is inside the closed mesh, by ray parity along x per (j, k) row. Rays are offset by a tiny,
 /// irrational fraction of a voxel so they never pass exactly through mesh vertices or edges.
 volume::Volume rasterize_labels(const Mesh& closed_mesh, const volume::Volume& like);
-
-// ---------------------------------------------------------------------------------------------
-// Mesh files. Writers and readers return an error instead of throwing (a full disk or a bad file
-// is an outcome, not a bug); a stop array of the wrong length is a bug and throws.
-
-struct MeshIoError {
-  enum class Code { OpenFailed, WriteFailed, BadHeader, Unsupported, Truncated, BadIndex };
-  Code code = Code::WriteFailed;
-  std::string message;  // one line naming the file and the problem
-};
-
-/// Binary little-endian PLY with exactly `float x y z` and `list uchar int vertex_indices`.
-std::optional<MeshIoError> write_ply(const Mesh& mesh, const std::filesystem::path& path);
-/// As write_ply plus a per-vertex `uchar stop` (StopReason codes) after z.
-/// @throws std::invalid_argument if stop.size() != mesh.vertices.size().
-std::optional<MeshIoError> write_balloon_ply(const Mesh& mesh, const std::vector<StopReason>& stop,
-                                             const std::filesystem::path& path);
-/// Binary STL (facet normals from the triangle winding).
-std::optional<MeshIoError> write_stl(const Mesh& mesh, const std::filesystem::path& path);
-/// Wavefront OBJ (`v` and 1-based `f` lines).
-std::optional<MeshIoError> write_obj(const Mesh& mesh, const std::filesystem::path& path);
-/// By extension: .ply, .stl or .obj (anything else is an Unsupported error).
-std::optional<MeshIoError> write_mesh(const Mesh& mesh, const std::filesystem::path& path);
-
-struct MeshReadResult {
-  Mesh mesh;
-  std::vector<std::uint8_t> stop;  // the per-vertex `stop` property if the file has one
-  std::optional<MeshIoError> error;
-  explicit operator bool() const { return !error.has_value(); }
-};
-
-/// Reads PLY (ascii or binary_little_endian; any scalar property types; polygons fanned into
-/// triangles). Needs x, y, z vertex properties and a vertex_indices (or vertex_index) face list.
-MeshReadResult read_ply(const std::filesystem::path& path);
 
 }  // namespace sonomesh::reconstruct

@@ -27,6 +27,8 @@ packages=(
   chromium
   # the sanitizer build and the libFuzzer targets (SONOMESH_SANITIZE / SONOMESH_FUZZ in test.sh)
   clang libclang-rt-14-dev
+  # the `format` test (scripts/check_format.sh)
+  clang-format-14
 )
 
 missing=()

@@ -17,7 +17,7 @@
 #include <stdexcept>
 #include <string>
 
-#include "reconstruct/internal/parallel.h"
+#include "mesh/parallel.h"
 #include "reconstruct/reconstruct.h"
 
 namespace sonomesh::reconstruct {
@@ -137,7 +137,7 @@ float narrowest_feature_mm(const PointCloud& s, float max_width_mm, float min_ar
       make_buckets(s.points, s.normals, max_width_mm * std::sqrt(1.0f + kConeTan * kConeTan));
   std::vector<float> width(s.points.size());
   const int n = int(s.points.size());
-  internal::parallel_chunks(0, n, internal::default_threads(), [&](int q0, int q1, int) {
+  mesh::parallel_chunks(0, n, mesh::default_threads(), [&](int q0, int q1, int) {
     for (int q = q0; q < q1; ++q)
       width[b.order[q]] = local_width(b, std::uint32_t(q), max_width_mm);
   });

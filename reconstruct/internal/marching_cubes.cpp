@@ -20,7 +20,7 @@
 #include <stdexcept>
 #include <vector>
 
-#include "reconstruct/internal/parallel.h"
+#include "mesh/parallel.h"
 #include "reconstruct/reconstruct.h"
 
 namespace sonomesh::reconstruct {
@@ -204,7 +204,7 @@ Mesh marching_cubes(const volume::Volume& field, float iso) {
   const std::size_t n_points = sz * nz;
   const float* f = field.f32().data();
   // Thread start-up costs more than a small grid's whole run.
-  const int threads = n_points < (1u << 15) ? 1 : internal::default_threads();
+  const int threads = n_points < (1u << 15) ? 1 : mesh::default_threads();
 
   // Border samples count as outside (value pushed just below iso) so every surface closes.
   auto value = [&](int i, int j, int k) -> float {
@@ -216,7 +216,7 @@ Mesh marching_cubes(const volume::Volume& field, float iso) {
   // Inside flags, and per x-row whether the row is all outside (0), all inside (1) or mixed (2):
   // most of the padded grid is far from the surface, and whole rows are skipped below.
   std::vector<std::uint8_t> inside(n_points), row_state(std::size_t(ny) * nz);
-  internal::parallel_chunks(0, nz, threads, [&](int k0, int k1, int) {
+  mesh::parallel_chunks(0, nz, threads, [&](int k0, int k1, int) {
     for (int k = k0; k < k1; ++k)
       for (int j = 0; j < ny; ++j) {
         std::uint8_t* row = &inside[j * sy + k * sz];
@@ -258,7 +258,7 @@ Mesh marching_cubes(const volume::Volume& field, float iso) {
       for (int i = 0; i < nx; ++i)
         if (row[i] != row[i + sz]) fn(i, 2);
   };
-  internal::parallel_chunks(0, nz, threads, [&](int k0, int k1, int) {
+  mesh::parallel_chunks(0, nz, threads, [&](int k0, int k1, int) {
     for (int k = k0; k < k1; ++k) {
       int count = 0;
       for (int j = 0; j < ny; ++j) for_crossed_edges(j, k, [&](int, int) { ++count; });
@@ -270,7 +270,7 @@ Mesh marching_cubes(const volume::Volume& field, float iso) {
   Mesh mesh;
   mesh.vertices.resize(layer_offset[nz]);
   const Vec3f spacing = field.spacing_mm(), origin = field.origin_mm();
-  internal::parallel_chunks(0, nz, threads, [&](int k0, int k1, int) {
+  mesh::parallel_chunks(0, nz, threads, [&](int k0, int k1, int) {
     for (int k = k0; k < k1; ++k) {
       int index = layer_offset[k];
       for (int j = 0; j < ny; ++j)
@@ -294,7 +294,7 @@ Mesh marching_cubes(const volume::Volume& field, float iso) {
   };
   constexpr std::uint32_t kCentreTag = 0x80000000u;
   std::vector<Local> locals(threads);
-  internal::parallel_chunks(0, nz - 1, threads, [&](int k0, int k1, int t) {
+  mesh::parallel_chunks(0, nz - 1, threads, [&](int k0, int k1, int t) {
     Local& out = locals[t];
     std::uint32_t vid[16];
     for (int k = k0; k < k1; ++k)

@@ -15,8 +15,8 @@
 #include <stdexcept>
 #include <string>
 
+#include "mesh/parallel.h"
 #include "reconstruct/internal/fft_plans.h"
-#include "reconstruct/internal/parallel.h"
 #include "reconstruct/reconstruct.h"
 
 namespace sonomesh::reconstruct {
@@ -171,7 +171,7 @@ IndicatorGrid poisson_indicator(const PointCloud& s, const PoissonOptions& o) {
   const std::size_t n_real = g.size(), n_cplx = g.complex_size();
   const int hx = d[0] / 2 + 1;
   internal::FftBuffer real(n_real), spectrum(2 * n_cplx);
-  const int threads = std::min(o.fft_threads, internal::default_threads());
+  const int threads = std::min(o.fft_threads, mesh::default_threads());
   const float sigma_mm = o.smoothing_cells * g.cell_mm;
   const float norm = 1.0f / float(n_real);  // FFTW's transforms are unnormalised
 
@@ -189,7 +189,7 @@ IndicatorGrid poisson_indicator(const PointCloud& s, const PoissonOptions& o) {
   }
   // Visits every frequency bin with its wave vector (both cores).
   auto for_each_bin = [&](auto&& fn) {
-    internal::parallel_chunks(0, d[2], threads, [&](int z0, int z1, int) {
+    mesh::parallel_chunks(0, d[2], threads, [&](int z0, int z1, int) {
       for (int z = z0; z < z1; ++z) {
         for (int y = 0; y < d[1]; ++y) {
           const std::size_t row = (std::size_t(z) * d[1] + y) * hx;
@@ -228,7 +228,7 @@ IndicatorGrid poisson_indicator(const PointCloud& s, const PoissonOptions& o) {
       splat(g, s, axis, real.data());
       const float* v = real.data();
       float* dv = div.data();
-      internal::parallel_chunks(0, d[2], threads, [&](int z0, int z1, int) {
+      mesh::parallel_chunks(0, d[2], threads, [&](int z0, int z1, int) {
         for (int z = z0; z < z1; ++z)
           for (int y = 0; y < d[1]; ++y)
             for (int x = 0; x < d[0]; ++x) {

@@ -3,7 +3,7 @@
 #include <algorithm>
 #include <cmath>
 
-#include "reconstruct/internal/parallel.h"
+#include "mesh/parallel.h"
 #include "reconstruct/reconstruct.h"
 
 namespace sonomesh::reconstruct {
@@ -58,7 +58,7 @@ volume::Volume rasterize_labels(const Mesh& mesh, const volume::Volume& like) {
   }
 
   auto& out = labels.u8();
-  internal::parallel_chunks(0, nz, internal::default_threads(), [&](int kb, int ke, int) {
+  mesh::parallel_chunks(0, nz, mesh::default_threads(), [&](int kb, int ke, int) {
     std::vector<double> hits;
     for (int k = kb; k < ke; ++k)
       for (int j = 0; j < ny; ++j) {

@@ -2,7 +2,6 @@
 
 #include <chrono>
 
-#include "reconstruct/internal/components.h"
 #include "reconstruct/reconstruct.h"
 
 namespace sonomesh::reconstruct {
@@ -19,7 +18,7 @@ SurfaceResult reconstruct_surface(const PointCloud& samples, const Vec3f& seed_m
   const auto t1 = clock::now();
   const Mesh all = marching_cubes(grid.chi, grid.iso);
   r.mesh =
-      internal::select_component(all, seed_mm, &r.seed_enclosed, &r.components_before_selection);
+      mesh::component_enclosing(all, seed_mm, &r.seed_enclosed, &r.components_before_selection);
   const auto t2 = clock::now();
   r.topology = analyze_topology(r.mesh);
   r.iso = grid.iso;

@@ -63,26 +63,11 @@ CostRule cost_rule(const SeedRegion& seed, const CostScale& scale, const Balloon
 void check_seed_inside(const volume::Volume& smoothed, const Vec3f& seed_mm) {
   if (!smoothed.contains_mm(seed_mm))
     throw std::invalid_argument("inflate_balloon: seed (" + std::to_string(seed_mm.x()) + ", " +
-                                std::to_string(seed_mm.y()) + ", " +
-                                std::to_string(seed_mm.z()) + ") mm lies outside the volume");
+                                std::to_string(seed_mm.y()) + ", " + std::to_string(seed_mm.z()) +
+                                ") mm lies outside the volume");
 }
 
 }  // namespace
-
-int euler_characteristic(const Mesh& mesh) {
-  std::vector<std::uint64_t> edges;
-  edges.reserve(mesh.triangles.size() * 3);
-  for (const auto& t : mesh.triangles)
-    for (int k = 0; k < 3; ++k) {
-      std::uint64_t a = t[k], b = t[(k + 1) % 3];
-      if (a > b) std::swap(a, b);
-      edges.push_back((a << 32) | b);
-    }
-  std::sort(edges.begin(), edges.end());
-  const auto e = std::unique(edges.begin(), edges.end()) - edges.begin();
-  return static_cast<int>(mesh.vertices.size()) - static_cast<int>(e) +
-         static_cast<int>(mesh.triangles.size());
-}
 
 BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::Gradient& gradient,
                               const Vec3f& seed_mm, const BalloonOptions& options,

@@ -17,9 +17,8 @@ constexpr int kNoVoxel = std::numeric_limits<int>::min();
 // volume's bounding-box area (times max_area_fraction) needs at the target edge length.
 std::size_t leak_bound(const volume::Volume& grid, const BalloonOptions& o, float vox_mm) {
   const Vec3f extent_mm = grid.max_mm() - grid.min_mm();
-  const float box_area_mm2 =
-      2.0f * (extent_mm.x() * extent_mm.y() + extent_mm.y() * extent_mm.z() +
-              extent_mm.z() * extent_mm.x());
+  const float box_area_mm2 = 2.0f * (extent_mm.x() * extent_mm.y() + extent_mm.y() * extent_mm.z() +
+                                     extent_mm.z() * extent_mm.x());
   const float edge_mm = o.target_edge_vox * vox_mm;
   return static_cast<std::size_t>(o.max_area_fraction * box_area_mm2 /
                                   (0.433f * edge_mm * edge_mm) * 0.5f) +
@@ -103,13 +102,13 @@ int BalloonEvolution::iterate() {
   std::atomic<int> moving_count{0};
   const auto t_evolve = Clock::now();
   stats_.vertex_iterations += static_cast<std::int64_t>(active_.size());
-  workers_.parallel_for(active_.size(), Workers::kHeavy, [&](std::size_t b, std::size_t e) {
+  workers_.parallel_for(active_.size(), kHeavyGrain, [&](std::size_t b, std::size_t e) {
     const FrontGrid::Reader reader(marks_.grid());
     int local_moving = 0;
     for (std::size_t i = b; i < e; ++i) local_moving += advance_vertex(active_[i], reader);
     moving_count.fetch_add(local_moving, std::memory_order_relaxed);
   });
-  workers_.parallel_for(active_.size(), Workers::kLight, [&](std::size_t b, std::size_t e) {
+  workers_.parallel_for(active_.size(), kLightGrain, [&](std::size_t b, std::size_t e) {
     for (std::size_t i = b; i < e; ++i)
       if (moved_[active_[i]]) a_.pos[active_[i]] = a_.next_pos[active_[i]];
   });
@@ -197,8 +196,7 @@ void BalloonEvolution::settle(std::uint32_t v, const Vec3f& n, bool stopped,
   Vec3i ijk = target_ijk;
   const bool in_volume = !stopped ? target_in_volume : marks_.voxel(a_.next_pos[v], ijk);
   const std::int64_t voxel =
-      in_volume ? static_cast<std::int64_t>(smoothed_.linear_index(ijk.x(), ijk.y(), ijk.z()))
-                : -1;
+      in_volume ? static_cast<std::int64_t>(smoothed_.linear_index(ijk.x(), ijk.y(), ijk.z())) : -1;
   if (voxel != a_.marked_voxel[v]) {
     moved_[v] |= kMarks;
     a_.marked_voxel[v] = voxel;
@@ -210,7 +208,7 @@ void BalloonEvolution::settle(std::uint32_t v, const Vec3f& n, bool stopped,
 // may keep a stale normal. Each face is computed once, by the lowest-numbered of its vertices
 // that moved, so the rings can be walked in parallel.
 void BalloonEvolution::compute_normals() {
-  workers_.parallel_for(active_.size(), Workers::kLight, [&](std::size_t b, std::size_t e) {
+  workers_.parallel_for(active_.size(), kLightGrain, [&](std::size_t b, std::size_t e) {
     for (std::size_t i = b; i < e; ++i) {
       const std::uint32_t v = active_[i];
       if (!moved_[v]) continue;
@@ -218,14 +216,13 @@ void BalloonEvolution::compute_normals() {
         const std::uint32_t f = a_.ring_face_left[r];
         const auto& t = a_.tri[f];
         // (v is one of t; moved_[] is 0 for every vertex that is not active.)
-        if ((t[0] < v && moved_[t[0]]) || (t[1] < v && moved_[t[1]]) ||
-            (t[2] < v && moved_[t[2]]))
+        if ((t[0] < v && moved_[t[0]]) || (t[1] < v && moved_[t[1]]) || (t[2] < v && moved_[t[2]]))
           continue;
         a_.face_normal[f] = unit_face_normal(a_.pos, t);
       }
     }
   });
-  workers_.parallel_for(active_.size(), Workers::kLight, [&](std::size_t b, std::size_t e) {
+  workers_.parallel_for(active_.size(), kLightGrain, [&](std::size_t b, std::size_t e) {
     for (std::size_t i = b; i < e; ++i) {
       const std::uint32_t v = active_[i];
       Vec3f n = Vec3f::Zero();  // the normalised sum of the unit triangle normals
@@ -242,7 +239,7 @@ void BalloonEvolution::compute_normals() {
 // to solid. Found in parallel, marked serially in vertex order.
 void BalloonEvolution::mark_front() {
   pending_.resize(a_.ring_vertex.size() + a_.pos.size());
-  workers_.parallel_for(active_.size(), Workers::kHeavy, [&](std::size_t b, std::size_t e) {
+  workers_.parallel_for(active_.size(), kHeavyGrain, [&](std::size_t b, std::size_t e) {
     const FrontGrid::Reader reader(marks_.grid());
     for (std::size_t i = b; i < e; ++i) stage_samples(active_[i], reader);
   });

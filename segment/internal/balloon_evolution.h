@@ -9,13 +9,13 @@
 #include <string>
 #include <vector>
 
+#include "mesh/parallel.h"
 #include "segment/internal/balloon_mesh.h"
 #include "segment/internal/flat_arrays.h"
 #include "segment/internal/front_grid.h"
 #include "segment/internal/image_sampler.h"
 #include "segment/internal/step.h"
 #include "segment/internal/stop_rules.h"
-#include "segment/internal/workers.h"
 
 namespace sonomesh::segment::internal {
 
@@ -66,7 +66,7 @@ class BalloonEvolution {
   const std::size_t max_vertices_;  // the leak bound
   BalloonStats& stats_;
 
-  Workers workers_;
+  mesh::Workers workers_;
   BalloonMesh bm_;
   FrontMarks marks_;
   FlatArrays a_;

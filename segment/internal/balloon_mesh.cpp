@@ -38,7 +38,6 @@ std::uint32_t compact(const std::vector<std::uint8_t>& deleted, std::uint32_t n_
   return size;
 }
 
-
 }  // namespace
 
 // ---------------------------------------------------------------------------------------------
@@ -360,7 +359,8 @@ void BalloonMesh::garbage_collection() {
     return (h.idx >> 1) < ne ? h : Halfedge{2 * emap[(h.idx >> 1) - ne] + (h.idx & 1u)};
   };
   auto renew = [&](std::uint32_t i) {
-    if (halfedge_vertex_[i].idx >= nv) halfedge_vertex_[i] = Vertex{vmap[halfedge_vertex_[i].idx - nv]};
+    if (halfedge_vertex_[i].idx >= nv)
+      halfedge_vertex_[i] = Vertex{vmap[halfedge_vertex_[i].idx - nv]};
     if (halfedge_next_[i].valid()) halfedge_next_[i] = new_halfedge(halfedge_next_[i]);
     if (halfedge_face_[i].valid() && halfedge_face_[i].idx >= nf)
       halfedge_face_[i] = Face{fmap[halfedge_face_[i].idx - nf]};

@@ -29,13 +29,13 @@ namespace sonomesh::segment::internal {
 
 /// Evolution state carried by every balloon vertex through remeshing.
 struct VertexState {
-  float cost = 0.0f;                        // accumulated boundary cost Ψ_cost (grey levels)
-  StopReason reason = StopReason::Moving;   // Moving while k = 1
-  Vec3f anchor_mm = Vec3f::Zero();          // position at the start of the stall window
-  float path_mm = 0.0f;                     // length of the path travelled
-  float floor_level = 1e30f;                // darkest level met on the path (cost scale)
-  std::int64_t marked_voxel = -1;           // linear index of the voxel it last marked A_t
-                                            // from (-1: none yet, e.g. new from a split)
+  float cost = 0.0f;                       // accumulated boundary cost Ψ_cost (grey levels)
+  StopReason reason = StopReason::Moving;  // Moving while k = 1
+  Vec3f anchor_mm = Vec3f::Zero();         // position at the start of the stall window
+  float path_mm = 0.0f;                    // length of the path travelled
+  float floor_level = 1e30f;               // darkest level met on the path (cost scale)
+  std::int64_t marked_voxel = -1;          // linear index of the voxel it last marked A_t
+                                           // from (-1: none yet, e.g. new from a split)
 };
 
 inline constexpr std::uint32_t kInvalidIndex = std::numeric_limits<std::uint32_t>::max();

@@ -132,7 +132,8 @@ std::string validate(const BalloonMesh& mesh) {
     std::array<std::uint32_t, 3> idx{mesh.to_vertex(h).idx, mesh.to_vertex(mesh.next(h)).idx,
                                      mesh.to_vertex(mesh.next(mesh.next(h))).idx};
     if (idx[0] == idx[1] || idx[1] == idx[2] || idx[0] == idx[2]) return "degenerate face";
-    volume6 += dot(mesh.point_mm({idx[0]}), cross(mesh.point_mm({idx[1]}), mesh.point_mm({idx[2]})));
+    volume6 +=
+        dot(mesh.point_mm({idx[0]}), cross(mesh.point_mm({idx[1]}), mesh.point_mm({idx[2]})));
     std::sort(idx.begin(), idx.end());
     if (!faces.insert(idx).second) return "duplicate face";
   }
@@ -158,6 +159,5 @@ Mesh to_plain_mesh(const BalloonMesh& mesh) {
   }
   return out;
 }
-
 
 }  // namespace sonomesh::segment::internal

@@ -24,8 +24,7 @@ openvdb::Coord coord(const Vec3i& ijk) { return openvdb::Coord(ijk.x(), ijk.y(),
 // Index space (i, j, k) -> mm: p = origin + spacing ⊙ ijk, a scale-then-translate map.
 openvdb::math::Transform::Ptr make_transform(const Volume& like) {
   const openvdb::Vec3d scale(like.spacing_mm().x(), like.spacing_mm().y(), like.spacing_mm().z());
-  const openvdb::Vec3d translate(like.origin_mm().x(), like.origin_mm().y(),
-                                 like.origin_mm().z());
+  const openvdb::Vec3d translate(like.origin_mm().x(), like.origin_mm().y(), like.origin_mm().z());
   openvdb::math::MapBase::Ptr map(new openvdb::math::ScaleTranslateMap(scale, translate));
   return openvdb::math::Transform::Ptr(new openvdb::math::Transform(map));
 }
@@ -39,8 +38,7 @@ std::int32_t encode_normal(const Vec3f& n) {
     const int t = static_cast<int>(x);
     const float frac = x - static_cast<float>(t);
     const int rounded = t + (frac >= 0.5f ? 1 : frac <= -0.5f ? -1 : 0);
-    return static_cast<std::uint32_t>(
-        static_cast<std::uint8_t>(static_cast<std::int8_t>(rounded)));
+    return static_cast<std::uint32_t>(static_cast<std::uint8_t>(static_cast<std::int8_t>(rounded)));
   };
   return static_cast<std::int32_t>(q(n.x()) | (q(n.y()) << 8) | (q(n.z()) << 16) | (1u << 24));
 }

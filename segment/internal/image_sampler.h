@@ -99,12 +99,15 @@ class ImageSampler {
       const int n = dims_[a];
       max_index_[a] = static_cast<float>(n - 1);
       last_cell_[a] = std::max(n - 2, 0);  // the lower corner of the last cell
-      stride_[a] = a == 0 ? 1 : a == 1 ? static_cast<std::size_t>(dims_.x())
-                                      : static_cast<std::size_t>(dims_.x()) * static_cast<std::size_t>(dims_.y());
-      step[a] = n > 1 ? stride_[a] : 0;   // a single-voxel axis has no upper corner
+      stride_[a] = a == 0 ? 1
+                   : a == 1
+                       ? static_cast<std::size_t>(dims_.x())
+                       : static_cast<std::size_t>(dims_.x()) * static_cast<std::size_t>(dims_.y());
+      step[a] = n > 1 ? stride_[a] : 0;  // a single-voxel axis has no upper corner
     }
     for (int i = 0; i < 8; ++i)
-      corner_offset_[i] = ((i & 1) ? step[0] : 0) + ((i & 2) ? step[1] : 0) + ((i & 4) ? step[2] : 0);
+      corner_offset_[i] =
+          ((i & 1) ? step[0] : 0) + ((i & 2) ? step[1] : 0) + ((i & 4) ? step[2] : 0);
   }
 
   Vec3i dims_;
@@ -130,7 +133,9 @@ class ImageSampler {
 struct CostScale {
   bool relative = false;
   float floor = 1.0f;
-  float weight(float intensity) const { return relative ? 1.0f / std::max(intensity, floor) : 1.0f; }
+  float weight(float intensity) const {
+    return relative ? 1.0f / std::max(intensity, floor) : 1.0f;
+  }
   float map(float intensity) const {
     if (!relative) return intensity;
     return intensity < floor ? intensity / floor : 1.0f + std::log(intensity / floor);
@@ -143,8 +148,8 @@ struct SeedRegion {
   float sigma = 0.0f;         // standard deviation in the ball around the seed
   float tissue_level = 0.0f;  // median over rays of the level just beyond the first rise
   int rays = 0;
-  int rays_hit = 0;           // rays that found a sustained rise to a brighter level
-  float safe_radius_mm = 0.0f;  // distance along the rays that stays at the seed's level
+  int rays_hit = 0;                // rays that found a sustained rise to a brighter level
+  float safe_radius_mm = 0.0f;     // distance along the rays that stays at the seed's level
   float noise_rise_per_mm = 0.0f;  // median over rays of the positive rise per mm (in the cost
                                    // scale) inside the target: what speckle adds to Ψ_cost per mm
 };

@@ -4,10 +4,11 @@
 #include <stdexcept>
 #include <string>
 
+#include "mesh/mesh.h"
+#include "mesh/parallel.h"
 #include "segment/internal/image_sampler.h"
 #include "segment/internal/step.h"
 #include "segment/internal/stop_rules.h"
-#include "segment/internal/workers.h"
 
 namespace sonomesh::segment {
 namespace {
@@ -36,36 +37,19 @@ struct VertexFaces {
   std::uint32_t degree(std::uint32_t v) const { return begin[v + 1] - begin[v]; }
 };
 
-// Closed at every vertex: in its link, the edges opposite it in its faces (counter-clockwise),
-// every neighbour starts exactly one link edge and ends one. A border edge or an edge with more
-// than two faces fails this.
+// The pass's precondition: a closed manifold whose every vertex has faces (an umbrella).
 void check_closed(const Mesh& surface, const VertexFaces& vf) {
-  std::vector<std::uint32_t> from, to;
-  for (std::uint32_t v = 0; v < surface.vertices.size(); ++v) {
-    const std::uint32_t deg = vf.degree(v);
-    if (deg < 3)
-      throw std::invalid_argument("reinflate: the surface is not closed at vertex " +
-                                  std::to_string(v) + " (fewer than 3 faces)");
-    from.resize(deg);
-    to.resize(deg);
-    for (std::uint32_t i = 0; i < deg; ++i) {
-      const auto& t = surface.triangles[vf.faces[vf.begin[v] + i]];
-      const int k = t[0] == v ? 0 : t[1] == v ? 1 : 2;
-      from[i] = t[(k + 1) % 3];
-      to[i] = t[(k + 2) % 3];
-    }
-    std::sort(from.begin(), from.end());
-    std::sort(to.begin(), to.end());
-    if (from != to || std::adjacent_find(from.begin(), from.end()) != from.end())
-      throw std::invalid_argument(
-          "reinflate: the surface is not closed (or not manifold) at vertex " + std::to_string(v));
-  }
+  if (!mesh::is_closed_manifold(surface))
+    throw std::invalid_argument("reinflate: the surface is not closed and manifold");
+  for (std::uint32_t v = 0; v < surface.vertices.size(); ++v)
+    if (vf.degree(v) == 0)
+      throw std::invalid_argument("reinflate: vertex " + std::to_string(v) + " has no face");
 }
 
 class Reinflation {
  public:
-  Reinflation(const volume::Volume& smoothed, const volume::Gradient& gradient,
-              const Mesh& surface, const BalloonStats& first_pass, const BalloonOptions& options,
+  Reinflation(const volume::Volume& smoothed, const volume::Gradient& gradient, const Mesh& surface,
+              const BalloonStats& first_pass, const BalloonOptions& options,
               const ReinflateOptions& pass, BalloonStats& stats);
   void run(std::stop_token stop);
   void take_result(BalloonResult& result);
@@ -84,7 +68,7 @@ class Reinflation {
   CostRule cost_;
   WallSnap snap_;
   BalloonStats& stats_;
-  Workers workers_;
+  mesh::Workers workers_;
   VertexFaces vf_;
   std::vector<Vec3f> pos_, next_pos_;
   std::vector<float> cost_of_, floor_of_, path_of_;
@@ -138,9 +122,9 @@ void Reinflation::start() {
   const CostScale& scale = cost_.scale;
   const float seed_level = scale.map(first_pass_.seed_level);
   const float wall_level =
-      scale.map(first_pass_.seed_level + options_.tau_cost_fraction * (first_pass_.tissue_level -
-                                                                       first_pass_.seed_level));
-  workers_.parallel_for(nv, Workers::kLight, [&](std::size_t b, std::size_t e) {
+      scale.map(first_pass_.seed_level +
+                options_.tau_cost_fraction * (first_pass_.tissue_level - first_pass_.seed_level));
+  workers_.parallel_for(nv, kLightGrain, [&](std::size_t b, std::size_t e) {
     for (std::size_t v = b; v < e; ++v) {
       const float level = scale.map(sampler_.value(pos_[v]));
       cost_of_[v] = std::max(0.0f, level - seed_level);
@@ -171,9 +155,9 @@ void Reinflation::advance_vertex(std::uint32_t v) {
   bool stopped = false;
   const float t = cost_.advance(sampler_, p, d, cost_of_[v], floor_of_[v], path_of_[v], stopped);
   // (Snapped no further ahead than the move bound allows.)
-  next_pos_[v] = stopped ? snap_.apply(sampler_, p + t * d, n,
-                                       std::max(0.0f, max_move_mm_ - path_of_[v]))
-                         : p + t * d;
+  next_pos_[v] =
+      stopped ? snap_.apply(sampler_, p + t * d, n, std::max(0.0f, max_move_mm_ - path_of_[v]))
+              : p + t * d;
   if (stopped)
     reason_[v] = StopReason::Boundary;
   else if (path_of_[v] >= max_move_mm_)
@@ -187,7 +171,7 @@ void Reinflation::run(std::stop_token stop) {
       stats_.cancelled = true;
       break;
     }
-    workers_.parallel_for(active_.size(), Workers::kHeavy, [&](std::size_t b, std::size_t e) {
+    workers_.parallel_for(active_.size(), kHeavyGrain, [&](std::size_t b, std::size_t e) {
       for (std::size_t k = b; k < e; ++k) advance_vertex(active_[k]);
     });
     // Every update above read the previous iterate; now they take effect.

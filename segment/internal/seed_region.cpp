@@ -40,7 +40,8 @@ SeedRegion analyse_seed(const ImageSampler& sampler, const volume::Volume& grid,
       }
   if (count == 0) return r;
   r.level = static_cast<float>(sum / count);
-  r.sigma = static_cast<float>(std::sqrt(std::max(0.0, sum2 / count - (sum / count) * (sum / count))));
+  r.sigma =
+      static_cast<float>(std::sqrt(std::max(0.0, sum2 / count - (sum / count) * (sum / count))));
   // A noise-free image has sigma 0; a floor keeps "a few sigma above" meaningful there.
   const float sigma_eff = std::max(r.sigma, 0.02f * std::abs(r.level) + 0.5f);
 
@@ -95,7 +96,8 @@ SeedRegion analyse_seed(const ImageSampler& sampler, const volume::Volume& grid,
     int hit = -1;
     for (int s = 0; s + sustain <= n_s && hit < 0; ++s) {
       bool above = true;
-      for (int t = s; t < s + sustain && above; ++t) above = profile[static_cast<std::size_t>(t)] > crossing;
+      for (int t = s; t < s + sustain && above; ++t)
+        above = profile[static_cast<std::size_t>(t)] > crossing;
       if (above) hit = s;
     }
     safe_mm = std::min(safe_mm, (hit >= 0 ? hit : n_s) * step);
@@ -106,7 +108,8 @@ SeedRegion analyse_seed(const ImageSampler& sampler, const volume::Volume& grid,
     tissue.push_back(median(std::vector<float>(profile.begin() + from, profile.begin() + to)));
     // The part of the ray clearly before the wall: its samples give the target's level (below),
     // its positive rises per mm the rate at which speckle alone raises Ψ_cost inside the target.
-    const int inside_end = std::min(hit - 2 * sustain, static_cast<int>(0.6f * static_cast<float>(hit)));
+    const int inside_end =
+        std::min(hit - 2 * sustain, static_cast<int>(0.6f * static_cast<float>(hit)));
     for (int s = 0; s < inside_end; ++s) inside_sum += profile[static_cast<std::size_t>(s)];
     if (inside_end > 0) inside_count += static_cast<std::size_t>(inside_end);
     if (inside_end >= 4) {
@@ -121,7 +124,8 @@ SeedRegion analyse_seed(const ImageSampler& sampler, const volume::Volume& grid,
   // there moved the ball's mean by ±10 % from seed to seed (64³ sphere: 32-39 grey levels), and
   // τ_cost with it, so the balloon stopped 0.08-0.52 voxel inside the wall depending on the
   // speckle at the seed alone (now 0.23-0.39). The ball's level placed the rays' wall crossing.
-  if (inside_count >= 64) r.level = static_cast<float>(inside_sum / static_cast<double>(inside_count));
+  if (inside_count >= 64)
+    r.level = static_cast<float>(inside_sum / static_cast<double>(inside_count));
   r.noise_rise_per_mm = median(rates);
   r.safe_radius_mm = std::max(0.0f, safe_mm - voxel_mm);
   return r;

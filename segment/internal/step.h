@@ -6,6 +6,7 @@
 #include <Eigen/Geometry>
 #include <array>
 #include <chrono>
+#include <cstddef>
 #include <cstdint>
 #include <vector>
 
@@ -14,6 +15,11 @@
 namespace sonomesh::segment::internal {
 
 using Clock = std::chrono::steady_clock;
+
+/// Grains of the balloon's parallel loops (mesh::Workers): 128 for the per-vertex evolution and
+/// A_t lookups (1-2 thousand instructions per vertex), 512 for the light loops (normals, copies).
+/// One grain of 512 for all left the fronts of a few hundred vertices on one core.
+inline constexpr std::size_t kHeavyGrain = 128, kLightGrain = 512;
 
 inline double ms_since(Clock::time_point t) {
   return std::chrono::duration<double, std::milli>(Clock::now() - t).count();

@@ -21,8 +21,7 @@ Vec3f WallSnap::apply(const ImageSampler& sampler, const Vec3f& p, const Vec3f& 
                       float ahead_limit_mm) const {
   if (!on) return p;
   const int lo = -static_cast<int>(std::lround(back_mm / step_mm));
-  const int hi =
-      static_cast<int>(std::floor(std::min(ahead_mm, ahead_limit_mm) / step_mm + 1e-3f));
+  const int hi = static_cast<int>(std::floor(std::min(ahead_mm, ahead_limit_mm) / step_mm + 1e-3f));
   std::array<float, kMaxSamples> slope;
   std::array<bool, kMaxSamples> steep;
   for (int k = lo; k <= hi; ++k) {
@@ -41,8 +40,7 @@ Vec3f WallSnap::apply(const ImageSampler& sampler, const Vec3f& p, const Vec3f& 
     if (best == lo || std::abs(k) < std::abs(best)) best = k;
   }
   if (best == lo) return p;
-  const float before = slope[best - 1 - lo], peak = slope[best - lo],
-              after = slope[best + 1 - lo];
+  const float before = slope[best - 1 - lo], peak = slope[best - lo], after = slope[best + 1 - lo];
   const float curvature = before - 2.0f * peak + after;  // < 0 at a strict peak
   const float offset =
       curvature < 0.0f ? std::clamp(0.5f * (before - after) / curvature, -0.5f, 0.5f) : 0.0f;

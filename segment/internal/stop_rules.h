@@ -57,8 +57,7 @@ struct CostRule {
     // Where Ψ_cost crosses τ_cost inside the step, the vertex stops at the crossing (the rise
     // taken as even along the step), so where it stops does not depend on the step length.
     float t = 1.0f;
-    if (cost > threshold && rise > 0.0f)
-      t = std::clamp((threshold - decayed) / rise, 0.0f, 1.0f);
+    if (cost > threshold && rise > 0.0f) t = std::clamp((threshold - decayed) / rise, 0.0f, 1.0f);
     path_mm += t * step_mm;
     stopped = cost > threshold || level - floor_level > tau_climb;
     return t;

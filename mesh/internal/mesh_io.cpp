@@ -7,9 +7,9 @@
 #include <sstream>
 #include <stdexcept>
 
-#include "reconstruct/reconstruct.h"
+#include "mesh/mesh.h"
 
-namespace sonomesh::reconstruct {
+namespace sonomesh::mesh {
 namespace {
 
 static_assert(std::endian::native == std::endian::little,
@@ -345,4 +345,4 @@ MeshReadResult read_ply(const std::filesystem::path& path) {
   return r;
 }
 
-}  // namespace sonomesh::reconstruct
+}  // namespace sonomesh::mesh

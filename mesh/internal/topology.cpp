@@ -8,10 +8,9 @@
 #include <stdexcept>
 #include <string>
 
-#include "reconstruct/internal/components.h"
-#include "reconstruct/reconstruct.h"
+#include "mesh/mesh.h"
 
-namespace sonomesh::reconstruct {
+namespace sonomesh::mesh {
 namespace {
 
 struct UnionFind {
@@ -69,20 +68,15 @@ double signed_volume_mm3(const Mesh& mesh) {
   return vol / 6.0;
 }
 
-}  // namespace
+// Directed half-edges (a, b) as 64-bit keys; an undirected edge is closed when it is exactly
+// {(a, b), (b, a)}. Counts the undirected edges, per component of `label` if given.
+struct EdgeCount {
+  int edges = 0;
+  bool watertight = false;
+};
 
-Topology analyze_topology(const Mesh& mesh) {
-  check_indices(mesh, "analyze_topology");
-  Topology topo;
-  int n_comp = 0;
-  const auto label = vertex_components(mesh, &n_comp);
-  topo.components = n_comp;
-  topo.faces = static_cast<int>(mesh.triangles.size());
-  topo.vertices =
-      static_cast<int>(std::count_if(label.begin(), label.end(), [](int l) { return l >= 0; }));
-
-  // Directed half-edges (a, b) as 64-bit keys; an undirected edge is closed when it is exactly
-  // {(a, b), (b, a)}.
+EdgeCount count_edges(const Mesh& mesh, const std::vector<int>* label,
+                      std::vector<int>* edges_per_comp) {
   std::vector<std::uint64_t> half;
   half.reserve(3 * mesh.triangles.size());
   for (const auto& t : mesh.triangles)
@@ -94,67 +88,101 @@ Topology analyze_topology(const Mesh& mesh) {
   });
   std::sort(half.begin(), half.end());
   std::sort(undirected.begin(), undirected.end());
-  bool watertight = !mesh.triangles.empty();
+  EdgeCount count;
+  count.watertight = !mesh.triangles.empty();
   if (std::adjacent_find(half.begin(), half.end()) != half.end())
-    watertight = false;  // same direction twice
-  std::vector<int> edges_per_comp(n_comp, 0), verts_per_comp(n_comp, 0), faces_per_comp(n_comp, 0);
+    count.watertight = false;  // same direction twice
   for (std::size_t i = 0; i < undirected.size();) {
     std::size_t j = i;
     while (j < undirected.size() && undirected[j] == undirected[i]) ++j;
-    if (j - i != 2) watertight = false;
-    ++topo.edges;
-    ++edges_per_comp[label[std::uint32_t(undirected[i] >> 32)]];
+    if (j - i != 2) count.watertight = false;
+    ++count.edges;
+    if (label) ++(*edges_per_comp)[(*label)[std::uint32_t(undirected[i] >> 32)]];
     i = j;
   }
+  return count;
+}
+
+// Closed manifold at every referenced vertex v: the link edges (b, c) of its faces (v, b, c)
+// form one cycle. Every neighbour starting exactly one link edge and ending one is the
+// watertight condition seen from v (each halfedge once, its twin once); following the edges from
+// one neighbour back to it in deg steps is the single fan.
+bool closed_fans(const Mesh& mesh) {
+  const std::size_t nv = mesh.vertices.size();
+  std::vector<std::uint32_t> start(nv + 1, 0);
+  for (const auto& t : mesh.triangles)
+    for (auto v : t) ++start[v + 1];
+  for (std::size_t v = 0; v < nv; ++v) start[v + 1] += start[v];
+  std::vector<std::uint32_t> fill(start.begin(), start.end() - 1), incident(start[nv]);
+  for (std::uint32_t f = 0; f < mesh.triangles.size(); ++f)
+    for (auto v : mesh.triangles[f]) incident[fill[v]++] = f;
+  std::vector<std::pair<std::uint32_t, std::uint32_t>> link;  // (b, c), sorted by b
+  std::vector<std::uint32_t> ends;
+  for (std::uint32_t v = 0; v < nv; ++v) {
+    const std::uint32_t deg = start[v + 1] - start[v];
+    if (deg == 0) continue;
+    link.clear();
+    ends.clear();
+    for (auto i = start[v]; i < start[v + 1]; ++i) {
+      const auto& t = mesh.triangles[incident[i]];
+      const int at = t[0] == v ? 0 : (t[1] == v ? 1 : 2);
+      link.emplace_back(t[(at + 1) % 3], t[(at + 2) % 3]);
+      ends.push_back(t[(at + 2) % 3]);
+    }
+    std::sort(link.begin(), link.end());
+    std::sort(ends.begin(), ends.end());
+    for (std::uint32_t i = 0; i < deg; ++i)
+      if (link[i].first != ends[i] || (i > 0 && ends[i] == ends[i - 1])) return false;
+    std::uint32_t at = link[0].first, steps = 0;
+    do {
+      const auto next =
+          std::lower_bound(link.begin(), link.end(), std::make_pair(at, std::uint32_t{0}));
+      at = next->second;
+      ++steps;
+    } while (at != link[0].first && steps <= deg);
+    if (steps != deg) return false;
+  }
+  return true;
+}
+
+}  // namespace
+
+Topology analyze_topology(const Mesh& mesh) {
+  check_indices(mesh, "analyze_topology");
+  Topology topo;
+  int n_comp = 0;
+  const auto label = vertex_components(mesh, &n_comp);
+  topo.components = n_comp;
+  topo.faces = static_cast<int>(mesh.triangles.size());
+  topo.vertices =
+      static_cast<int>(std::count_if(label.begin(), label.end(), [](int l) { return l >= 0; }));
+  std::vector<int> edges_per_comp(n_comp, 0), verts_per_comp(n_comp, 0), faces_per_comp(n_comp, 0);
+  const EdgeCount edges = count_edges(mesh, &label, &edges_per_comp);
+  topo.edges = edges.edges;
   for (std::size_t v = 0; v < label.size(); ++v)
     if (label[v] >= 0) ++verts_per_comp[label[v]];
   for (const auto& t : mesh.triangles) ++faces_per_comp[label[t[0]]];
   topo.euler = topo.vertices - topo.edges + topo.faces;
   for (int c = 0; c < n_comp; ++c)
     topo.genus += (2 - (verts_per_comp[c] - edges_per_comp[c] + faces_per_comp[c])) / 2;
-  topo.watertight = watertight;
-
-  // Vertex fans: the triangles around a vertex must form one cycle. Count them by linking the
-  // triangles of a vertex that share an edge at it.
-  bool manifold = watertight;
-  if (manifold) {
-    const std::size_t nv = mesh.vertices.size();
-    std::vector<std::uint32_t> start(nv + 1, 0);
-    for (const auto& t : mesh.triangles)
-      for (auto v : t) ++start[v + 1];
-    for (std::size_t v = 0; v < nv; ++v) start[v + 1] += start[v];
-    std::vector<std::uint32_t> fill(start.begin(), start.end() - 1), incident(start[nv]);
-    for (std::uint32_t f = 0; f < mesh.triangles.size(); ++f)
-      for (auto v : mesh.triangles[f]) incident[fill[v]++] = f;
-    // In a closed mesh each vertex's link is a union of cycles: (#triangles) link edges over
-    // (#neighbours) link vertices. One cycle <=> the link is connected.
-    std::vector<std::pair<std::uint32_t, std::uint32_t>> link;
-    std::vector<std::uint32_t> nodes;
-    for (std::uint32_t v = 0; v < nv && manifold; ++v) {
-      if (start[v] == start[v + 1]) continue;
-      link.clear();
-      nodes.clear();
-      for (auto i = start[v]; i < start[v + 1]; ++i) {
-        const auto& t = mesh.triangles[incident[i]];
-        const int at = t[0] == v ? 0 : (t[1] == v ? 1 : 2);
-        link.emplace_back(t[(at + 1) % 3], t[(at + 2) % 3]);
-        nodes.push_back(t[(at + 1) % 3]);
-        nodes.push_back(t[(at + 2) % 3]);
-      }
-      std::sort(nodes.begin(), nodes.end());
-      nodes.erase(std::unique(nodes.begin(), nodes.end()), nodes.end());
-      UnionFind uf(nodes.size());
-      auto id = [&](std::uint32_t x) {
-        return std::uint32_t(std::lower_bound(nodes.begin(), nodes.end(), x) - nodes.begin());
-      };
-      for (auto [a, b] : link) uf.unite(id(a), id(b));
-      for (std::uint32_t n = 0; n < nodes.size(); ++n)
-        if (uf.find(n) != 0) manifold = false;
-    }
-  }
-  topo.manifold = manifold;
+  topo.watertight = edges.watertight;
+  topo.manifold = edges.watertight && closed_fans(mesh);
   topo.volume_ml = enclosed_volume_ml(mesh);
   return topo;
+}
+
+bool is_closed_manifold(const Mesh& mesh) {
+  check_indices(mesh, "is_closed_manifold");
+  return !mesh.triangles.empty() && closed_fans(mesh);
+}
+
+int euler_characteristic(const Mesh& mesh) {
+  check_indices(mesh, "euler_characteristic");
+  int n_comp = 0;
+  const auto label = vertex_components(mesh, &n_comp);
+  const auto vertices = std::count_if(label.begin(), label.end(), [](int l) { return l >= 0; });
+  return static_cast<int>(vertices) - count_edges(mesh, nullptr, nullptr).edges +
+         static_cast<int>(mesh.triangles.size());
 }
 
 double enclosed_volume_ml(const Mesh& mesh) { return signed_volume_mm3(mesh) / 1000.0; }
@@ -202,9 +230,8 @@ bool encloses(const Mesh& mesh, const Vec3f& p_mm) {
   return hits % 2 == 1;
 }
 
-namespace internal {
-Mesh select_component(const Mesh& mesh, const Vec3f& seed_mm, bool* seed_enclosed,
-                      int* component_count) {
+Mesh component_enclosing(const Mesh& mesh, const Vec3f& seed_mm, bool* seed_enclosed,
+                         int* component_count) {
   auto comps = connected_components(mesh);
   if (component_count) *component_count = static_cast<int>(comps.size());
   int best = -1;
@@ -225,10 +252,5 @@ Mesh select_component(const Mesh& mesh, const Vec3f& seed_mm, bool* seed_enclose
   if (best < 0) return {};
   return std::move(comps[best]);
 }
-}  // namespace internal
 
-Mesh component_enclosing(const Mesh& mesh, const Vec3f& seed_mm, bool* seed_enclosed) {
-  return internal::select_component(mesh, seed_mm, seed_enclosed, nullptr);
-}
-
-}  // namespace sonomesh::reconstruct
+}  // namespace sonomesh::mesh
