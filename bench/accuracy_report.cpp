@@ -1,13 +1,20 @@
 // accuracy_report: one phantom through the pipeline, compared with its ground truth.
 //   accuracy_report --phantom NAME [--size N] [--speckle S] [--contrast C] [--seed N] [--repeat N]
-//                   [--format md|json]
-// Prints one markdown table row (the header with --header) or one JSON object. Distances are in
-// voxels: Dice and the boundary distances of daemon/internal/metrics.h between the result's label
-// volume and the truth. "balloon Dice" rasterizes the balloon itself, which tells whether accuracy
-// is lost in the first step (balloon) or the second (opening + reconstruction).
+//                   [--realism simple|echo] [--format md|json] [--jsonl ROWS.jsonl]
+//   accuracy_report --header
+//   accuracy_report --summarize ROWS.jsonl
+// Prints one markdown table row (the header with --header) or one JSON object; --jsonl also
+// appends the JSON row to a file, which --summarize turns into one summary row per realism mode and
+// contrast. Distances are in voxels: Dice and the boundary distances of daemon/internal/metrics.h
+// between the result's label volume and the truth. "balloon Dice" rasterizes the balloon itself,
+// which tells whether accuracy is lost in the first step (balloon) or the second (opening +
+// reconstruction). Volume error compares the mesh's enclosed volume with the truth's voxels.
 #include <CLI/CLI.hpp>
 #include <algorithm>
+#include <cmath>
 #include <cstdio>
+#include <fstream>
+#include <map>
 #include <nlohmann/json.hpp>
 #include <string>
 #include <vector>
@@ -20,10 +27,156 @@
 namespace {
 
 using namespace sonomesh;
+using nlohmann::json;
 
 double median(std::vector<double> values) {
+  if (values.empty()) return std::nan("");
   std::sort(values.begin(), values.end());
   return values[values.size() / 2];
+}
+
+std::string joined(const std::vector<std::string>& items) {
+  std::string out;
+  for (const auto& s : items) out += (out.empty() ? "" : "; ") + s;
+  return out;
+}
+
+void print_header() {
+  std::printf(
+      "| phantom | size | speckle | contrast | Dice | balloon Dice | result/truth volume | MSD "
+      "(vox) | HD95 (vox) "
+      "| genus expected | genus found | watertight | components | total ms (median) "
+      "| balloon stops B/C/S/I | volume error | quality |\n");
+  std::printf("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n");
+}
+
+// One case: the pipeline `repeat` times on the phantom, the last result measured.
+json measure(const sim::PhantomSpec& spec, const daemon::RunConfig& config, int repeat) {
+  const sim::Phantom phantom = sim::make_phantom(spec);
+  daemon::PipelineResult result;
+  std::vector<double> totals;
+  for (int r = 0; r < repeat; ++r) {
+    result = daemon::run_pipeline(phantom.image, phantom.seed_mm, config.pipeline);
+    totals.push_back(result.timings.total_ms);
+  }
+  json row = {{"phantom", spec.phantom},         {"realism", sim::to_string(spec.realism)},
+              {"size", spec.size_vox},           {"seed", spec.seed},
+              {"speckle", spec.speckle},         {"contrast", spec.contrast},
+              {"genus_expected", phantom.genus}, {"ok", result.ok},
+              {"error", result.error},           {"total_ms", median(totals)}};
+  double dice = 0, balloon_dice = 0, volume_ratio = 0, volume_error = 0;
+  daemon::internal::SurfaceDistances distances;
+  std::size_t truth_voxels = 0;
+  for (std::uint8_t v : phantom.truth.u8()) truth_voxels += v != 0;
+  const volume::Vec3f h = phantom.truth.spacing_mm();
+  const double truth_ml = static_cast<double>(truth_voxels) * h.x() * h.y() * h.z() / 1000.0;
+  if (result.ok && result.labels) {
+    dice = daemon::internal::dice(*result.labels, phantom.truth);
+    distances = daemon::internal::surface_distances(*result.labels, phantom.truth);
+    std::size_t found = 0;
+    for (std::uint8_t v : result.labels->u8()) found += v != 0;
+    volume_ratio =
+        truth_voxels ? static_cast<double>(found) / static_cast<double>(truth_voxels) : 0.0;
+    volume_error = truth_ml > 0 ? result.enclosed_volume_ml / truth_ml - 1.0 : 0.0;
+  }
+  if (!result.balloon.triangles.empty())
+    balloon_dice = daemon::internal::dice(
+        reconstruct::rasterize_labels(result.balloon, phantom.image), phantom.truth);
+  const auto& s = result.stop_counts;
+  row.update({{"dice", dice},
+              {"balloon_dice", balloon_dice},
+              {"volume_ratio", volume_ratio},
+              {"volume_error", volume_error},
+              {"msd_vox", distances.mean_vox},
+              {"hd95_vox", distances.hd95_vox},
+              {"genus_found", result.topology.genus},
+              {"watertight", result.topology.watertight},
+              {"components", result.topology.components},
+              {"quality", result.quality_ok ? "ok" : "suspect"},
+              {"quality_reasons", result.quality_reasons},
+              {"stops", {s.boundary, s.curvature, s.self_intersection, s.iteration_limit}}});
+  return row;
+}
+
+void print_row(const json& r) {
+  std::string name = r["phantom"].get<std::string>();
+  if (r["realism"] != "simple") name += " (" + r["realism"].get<std::string>() + ")";
+  const std::string quality =
+      r["quality"] == "ok"
+          ? "ok"
+          : "suspect: " + joined(r["quality_reasons"].get<std::vector<std::string>>());
+  if (!r["ok"].get<bool>()) {
+    std::printf(
+        "| %s | %d | %.2f | %.2f | failed: %s |  |  |  |  | %d |  |  |  | %.1f |  |  |  |\n",
+        name.c_str(), r["size"].get<int>(), r["speckle"].get<double>(), r["contrast"].get<double>(),
+        r["error"].get<std::string>().c_str(), r["genus_expected"].get<int>(),
+        r["total_ms"].get<double>());
+    return;
+  }
+  const auto& s = r["stops"];
+  std::printf(
+      "| %s | %d | %.2f | %.2f | %.3f | %.3f | %.3f | %.2f | %.2f | %d | %d | %s | %d | %.1f "
+      "| %d/%d/%d/%d | %+.1f %% | %s |\n",
+      name.c_str(), r["size"].get<int>(), r["speckle"].get<double>(), r["contrast"].get<double>(),
+      r["dice"].get<double>(), r["balloon_dice"].get<double>(), r["volume_ratio"].get<double>(),
+      r["msd_vox"].get<double>(), r["hd95_vox"].get<double>(), r["genus_expected"].get<int>(),
+      r["genus_found"].get<int>(), r["watertight"].get<bool>() ? "yes" : "no",
+      r["components"].get<int>(), r["total_ms"].get<double>(), s[0].get<int>(), s[1].get<int>(),
+      s[2].get<int>(), s[3].get<int>(), 100.0 * r["volume_error"].get<double>(), quality.c_str());
+}
+
+// One row per (realism, contrast): how many cases and how many failed, Dice median and worst (a
+// failed case counts as 0), over the cases with a surface: mean MSD, worst HD95, |volume error|
+// median and worst; genus right and quality ok out of all cases.
+int summarize(const std::string& path) {
+  std::ifstream in(path);
+  if (!in) {
+    std::fprintf(stderr, "accuracy_report: cannot read '%s'\n", path.c_str());
+    return 2;
+  }
+  std::map<std::pair<std::string, double>, std::vector<json>> groups;
+  std::string line;
+  for (int n = 1; std::getline(in, line); ++n) {
+    if (line.empty()) continue;
+    const json r = json::parse(line, nullptr, false);
+    if (r.is_discarded() || !r.contains("contrast") || !r.contains("dice")) {
+      std::fprintf(stderr, "accuracy_report: %s:%d is not an accuracy row\n", path.c_str(), n);
+      return 2;
+    }
+    const double c = std::round(r["contrast"].get<double>() * 100.0) / 100.0;
+    groups[{r.value("realism", "simple"), c}].push_back(r);
+  }
+  std::printf(
+      "| realism | contrast | cases | failed | Dice median | Dice min | MSD mean (vox) | HD95 max "
+      "(vox) "
+      "| genus right | abs volume error median | abs volume error max | quality ok |\n");
+  std::printf("|---|---|---|---|---|---|---|---|---|---|---|---|\n");
+  for (const auto& [key, rows] : groups) {
+    std::vector<double> dice, err, msd;
+    double hd95 = 0;
+    int genus_right = 0, quality_ok = 0, failed = 0;
+    for (const json& r : rows) {
+      const bool ok = r["ok"].get<bool>();
+      dice.push_back(ok ? r["dice"].get<double>() : 0.0);
+      failed += !ok;
+      if (!ok) continue;  // distances and volumes only exist for a surface
+      err.push_back(std::abs(r["volume_error"].get<double>()));
+      msd.push_back(r["msd_vox"].get<double>());
+      hd95 = std::max(hd95, r["hd95_vox"].get<double>());
+      genus_right += r["genus_found"] == r["genus_expected"];
+      quality_ok += r.value("quality", "ok") == "ok";
+    }
+    double msd_mean = 0;
+    for (double m : msd) msd_mean += m / static_cast<double>(msd.size());
+    const double err_max = err.empty() ? std::nan("") : *std::max_element(err.begin(), err.end());
+    std::printf(
+        "| %s | %.2f | %zu | %d | %.3f | %.3f | %.2f | %.2f | %d/%zu | %.1f %% | %.1f %% | %d/%zu "
+        "|\n",
+        key.first.c_str(), key.second, rows.size(), failed, median(dice),
+        *std::min_element(dice.begin(), dice.end()), msd.empty() ? std::nan("") : msd_mean, hd95,
+        genus_right, rows.size(), 100.0 * median(err), 100.0 * err_max, quality_ok, rows.size());
+  }
+  return 0;
 }
 
 }  // namespace
@@ -32,17 +185,23 @@ int main(int argc, char** argv) {
   CLI::App app{"accuracy_report: pipeline result vs phantom ground truth"};
   sim::PhantomSpec spec;
   int repeat = 3;
-  std::string format = "md";
+  std::string format = "md", realism = "simple", jsonl, summary, config_path;
   bool header = false;
-  app.add_option("--phantom", spec.phantom, "sphere, ellipsoid, torus, cyst-needle, double-torus");
+  app.add_option("--phantom", spec.phantom,
+                 "sphere, ellipsoid, torus, cyst-needle, double-torus, lv");
   app.add_option("--size", spec.size_vox, "Edge of the cubic volume (voxels)");
-  app.add_option("--speckle", spec.speckle, "Speckle strength (0 = none)");
+  auto* speckle =
+      app.add_option("--speckle", spec.speckle, "Speckle strength (0 = none; echo default 1)");
   app.add_option("--contrast", spec.contrast, "Target contrast (0..1)");
   app.add_option("--seed", spec.seed, "Random seed");
+  app.add_option("--realism", realism, "Image model: simple or echo (sim::with_echo_realism)")
+      ->check(CLI::IsMember({"simple", "echo"}));
   app.add_option("--repeat", repeat, "Runs per case; the median time is reported")
       ->check(CLI::Range(1, 100));
   app.add_option("--format", format, "md or json")->check(CLI::IsMember({"md", "json"}));
-  std::string config_path;
+  app.add_option("--jsonl", jsonl, "Also append the JSON row to this file");
+  app.add_option("--summarize", summary,
+                 "Print the per-contrast summary of a --jsonl file and exit");
   app.add_option("--config", config_path,
                  "TOML file as sonomeshd run reads it; its [pipeline] tables set the options");
   app.add_flag("--header", header, "Print the markdown table header and exit");
@@ -55,12 +214,10 @@ int main(int argc, char** argv) {
     return 2;
   }
   if (header) {
-    std::printf("| phantom | size | speckle | contrast | Dice | balloon Dice | result/truth volume | MSD (vox) | HD95 (vox) "
-                "| genus expected | genus found | watertight | components | total ms (median) "
-                "| balloon stops B/C/S/I |\n");
-    std::printf("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n");
+    print_header();
     return 0;
   }
+  if (!summary.empty()) return summarize(summary);
   try {
     daemon::RunConfig config;
     if (!config_path.empty()) {
@@ -69,55 +226,20 @@ int main(int argc, char** argv) {
         return 2;
       }
     }
-    const sim::Phantom phantom = sim::make_phantom(spec);
-    daemon::PipelineResult result;
-    std::vector<double> totals;
-    for (int r = 0; r < repeat; ++r) {
-      result = daemon::run_pipeline(phantom.image, phantom.seed_mm, config.pipeline);
-      totals.push_back(result.timings.total_ms);
+    if (realism == "echo") {  // the preset's speckle and attenuation, unless --speckle is given
+      const float given = spec.speckle;
+      spec = sim::with_echo_realism(spec);
+      if (speckle->count() > 0) spec.speckle = given;
     }
-    nlohmann::json row = {{"phantom", spec.phantom},   {"size", spec.size_vox},
-                          {"speckle", spec.speckle},   {"contrast", spec.contrast},
-                          {"genus_expected", phantom.genus}, {"ok", result.ok},
-                          {"error", result.error}};
-    double dice = 0, balloon_dice = 0, volume_ratio = 0;
-    daemon::internal::SurfaceDistances distances;
-    if (result.ok && result.labels) {
-      dice = daemon::internal::dice(*result.labels, phantom.truth);
-      distances = daemon::internal::surface_distances(*result.labels, phantom.truth);
-      std::size_t found = 0, truth = 0;
-      for (std::uint8_t v : result.labels->u8()) found += v != 0;
-      for (std::uint8_t v : phantom.truth.u8()) truth += v != 0;
-      volume_ratio = truth ? static_cast<double>(found) / static_cast<double>(truth) : 0.0;
-    }
-    if (!result.balloon.triangles.empty())
-      balloon_dice = daemon::internal::dice(
-          reconstruct::rasterize_labels(result.balloon, phantom.image), phantom.truth);
-    const auto& s = result.stop_counts;
-    row.update({{"dice", dice},
-                {"balloon_dice", balloon_dice},
-                {"volume_ratio", volume_ratio},
-                {"msd_vox", distances.mean_vox},
-                {"hd95_vox", distances.hd95_vox},
-                {"genus_found", result.topology.genus},
-                {"watertight", result.topology.watertight},
-                {"components", result.topology.components},
-                {"total_ms", median(totals)},
-                {"stops", {s.boundary, s.curvature, s.self_intersection, s.iteration_limit}}});
-    if (format == "json") {
+    const json row = measure(spec, config, repeat);
+    if (format == "json")
       std::printf("%s\n", row.dump().c_str());
-    } else if (!result.ok) {
-      std::printf("| %s | %d | %.2f | %.2f | failed: %s |  |  |  |  | %d |  |  |  | %.1f |  |\n",
-                  spec.phantom.c_str(), spec.size_vox, spec.speckle, spec.contrast,
-                  result.error.c_str(), phantom.genus, median(totals));
-    } else {
-      std::printf("| %s | %d | %.2f | %.2f | %.3f | %.3f | %.3f | %.2f | %.2f | %d | %d | %s | %d | %.1f "
-                  "| %d/%d/%d/%d |\n",
-                  spec.phantom.c_str(), spec.size_vox, spec.speckle, spec.contrast, dice,
-                  balloon_dice, volume_ratio, distances.mean_vox, distances.hd95_vox, phantom.genus,
-                  result.topology.genus, result.topology.watertight ? "yes" : "no",
-                  result.topology.components, median(totals), s.boundary, s.curvature,
-                  s.self_intersection, s.iteration_limit);
+    else
+      print_row(row);
+    if (!jsonl.empty()) {
+      std::ofstream out(jsonl, std::ios::app);
+      out << row.dump() << '\n';
+      if (!out) throw std::runtime_error("cannot append to '" + jsonl + "'");
     }
     return 0;
   } catch (const std::exception& e) {

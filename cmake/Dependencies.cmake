@@ -40,6 +40,15 @@ target_include_directories(sonomesh_dep_openvdb SYSTEM INTERFACE ${OPENVDB_INCLU
 target_link_libraries(sonomesh_dep_openvdb INTERFACE ${OPENVDB_LIB} TBB::tbb Imath::Imath Threads::Threads)
 add_library(deps::openvdb ALIAS sonomesh_dep_openvdb)
 
+# OpenIGTLink 1.11 (protocol 2, header v1): Debian's OpenIGTLinkConfig.cmake defines variables
+# only, no imported target; the headers are in include/openigtlink, the library in /usr/lib.
+find_path(OPENIGTLINK_INCLUDE_DIR igtlImageMessage.h PATH_SUFFIXES openigtlink REQUIRED)
+find_library(OPENIGTLINK_LIB OpenIGTLink REQUIRED)
+add_library(sonomesh_dep_openigtlink INTERFACE)
+target_include_directories(sonomesh_dep_openigtlink SYSTEM INTERFACE ${OPENIGTLINK_INCLUDE_DIR})
+target_link_libraries(sonomesh_dep_openigtlink INTERFACE ${OPENIGTLINK_LIB} Threads::Threads)
+add_library(deps::openigtlink ALIAS sonomesh_dep_openigtlink)
+
 pkg_check_modules(LIBUSB REQUIRED IMPORTED_TARGET libusb-1.0)
 add_library(deps::libusb ALIAS PkgConfig::LIBUSB)
 

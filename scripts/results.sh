@@ -19,7 +19,56 @@ sizes="64 128"
 speckles="0.25 0.5"
 repeat=3
 bench_repeat=5
-if [ "$quick" = 1 ]; then sizes="64"; speckles="0.5"; repeat=1; bench_repeat=2; fi
+# The echo realism mode (sim::with_echo_realism): its phantoms, sizes, contrasts and seeds.
+echo_phantoms="lv cyst-needle torus double-torus"
+echo_sizes="96"
+echo_contrasts="0.3 0.5 0.7"
+echo_seeds="1 2"
+if [ "$quick" = 1 ]; then
+  sizes="64"; speckles="0.5"; repeat=1; bench_repeat=2; echo_sizes="64"; echo_seeds="1"
+fi
+# ECHO_ONLY=1 writes only the echo section (to stdout), for a look without the whole report.
+echo_only="${ECHO_ONLY:-0}"
+
+echo_section() {
+  local rows
+  rows="$(mktemp)"
+  echo "## Accuracy in the echo realism mode"
+  echo
+  echo "The same measurements on phantoms rendered as a 3D echo probe shows them"
+  echo "(\`--realism echo\`: a pyramidal sector with zeros outside it, fully developed speckle of"
+  echo "0.6 mm grain in tissue and blood pool alike, the cavity's echo (1 - contrast) of the tissue's,"
+  echo "near-field clutter, wall dropout where the wall runs along the beam, 3 dB/cm attenuation under"
+  echo "an 80 % time-gain compensation; the lv phantom has a trabeculated wall, a brighter myocardium"
+  echo "and a valve plane). Seeds $echo_seeds, sizes $echo_sizes, 0.5 mm voxels. Volume error is the"
+  echo "mesh's enclosed volume against the truth's voxels; quality is the pipeline's verdict."
+  echo "Targets: Dice ≥ 0.95 at contrast ≥ 0.5 and ≥ 0.92 at 0.3, genus right in ≥ 98 % of cases,"
+  echo "|volume error| ≤ 3 %."
+  echo
+  "$accuracy" --header
+  for size in $echo_sizes; do
+    for contrast in $echo_contrasts; do
+      for phantom in $echo_phantoms; do
+        for seed in $echo_seeds; do
+          "$accuracy" --realism echo --phantom "$phantom" --size "$size" --contrast "$contrast" \
+            --seed "$seed" --repeat 1 --jsonl "$rows" \
+            || echo "| $phantom (echo) | $size | | $contrast | accuracy_report failed (exit $?) | | | | | | | | | | | | |"
+        done
+      done
+    done
+  done
+  echo
+  echo "Per contrast (a failed case counts as Dice 0, genus wrong and not ok; distances and volume"
+  echo "errors are over the cases with a surface):"
+  echo
+  "$accuracy" --summarize "$rows"
+  rm -f "$rows"
+}
+
+if [ "$echo_only" = 1 ]; then
+  echo_section
+  exit 0
+fi
 
 out="$root/docs/results.md"
 tmp="$(mktemp)"
@@ -52,6 +101,8 @@ trap 'rm -f "$tmp"' EXIT
       done
     done
   done
+  echo
+  echo_section
   echo
   echo "## Speed per stage"
   echo

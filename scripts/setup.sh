@@ -14,6 +14,8 @@ packages=(
   libboost-dev
   # segment/ and reconstruct/
   libfftw3-dev
+  # sim/: probe-sim serve --igtl (a PlusServer stand-in) packs IMAGE messages with it
+  libopenigtlink-dev
   # daemon/
   libcli11-dev libtomlplusplus-dev nlohmann-json3-dev libspdlog-dev libfmt-dev libcpp-httplib-dev
   # tests and benchmarks (HIL tests run the real libusb/V4L2 paths under umockdev)

@@ -2,7 +2,7 @@
 /// @file
 /// @brief A live probe made of phantoms: sim::make_phantom volumes, breathing, paced, numbered.
 ///
-/// The daemon's `sim:PHANTOM[?rate=HZ&size=N&count=N&seed=N]` source.
+/// The daemon's `sim:PHANTOM[?rate=HZ&size=N&count=N&seed=N&contrast=C&realism=echo]` source.
 
 #include <chrono>
 #include <cstdint>
@@ -22,7 +22,9 @@ struct PhantomSourceOptions {
   std::uint64_t count = 0; // volumes before end of stream; 0 = endless
 };
 
-/// Parses `sim:PHANTOM[?rate=HZ&size=N&count=N&seed=N]` (the "sim:" prefix is optional).
+/// Parses `sim:PHANTOM[?rate=HZ&size=N&count=N&seed=N&contrast=C&realism=simple|echo&oblique=0|1]`
+/// (the "sim:" prefix is optional); realism=echo applies with_echo_realism, oblique=1 sets
+/// PhantomSpec::oblique (the volumes carry oblique_direction()).
 /// InvalidArgument with a one-line detail naming the bad part.
 tl::expected<PhantomSourceOptions, acquire::AcquireError> parse_sim_uri(const std::string& uri);
 

@@ -15,7 +15,8 @@ namespace sonomesh::sim::internal {
 /// The subcommand's callback sets exit_code (0 on success) and prints one line on stderr on error.
 void add_generate_command(CLI::App& app, int& exit_code);
 
-/// `probe-sim serve`: phantom volumes or a .usv replay over a socket, with fault injection
+/// `probe-sim serve`: phantom volumes or a .usv replay over a socket, with fault injection, or as
+/// an OpenIGTLink server (--igtl, internal/igtl_serve.h)
 /// (sim/internal/serve.cpp, owned by helper "acquire").
 void add_serve_command(CLI::App& app, int& exit_code);
 

@@ -20,6 +20,8 @@ struct GenerateArgs {
   std::string spacing = "0.5";
   std::string axis = "0,0,1";
   std::string needle_axis;
+  std::string realism = "simple";
+  bool speckle_given = false, attenuation_given = false;
   std::string out;
   std::string truth;
 };
@@ -61,6 +63,13 @@ nlohmann::json vec_json(const Vec3f& v) { return {num(v.x()), num(v.y()), num(v.
 
 void run_generate(GenerateArgs& args) {
   PhantomSpec& spec = args.spec;
+  if (parse_realism(args.realism) == Realism::Echo) {
+    // The echo preset's speckle and attenuation, unless given.
+    const PhantomSpec preset = with_echo_realism(spec);
+    spec.realism = Realism::Echo;
+    if (!args.speckle_given) spec.speckle = preset.speckle;
+    if (!args.attenuation_given) spec.attenuation_db_per_cm = preset.attenuation_db_per_cm;
+  }
   spec.spacing_mm = parse_vec3(args.spacing, "--spacing", true);
   spec.axis = parse_vec3(args.axis, "--axis", false);
   if (!args.needle_axis.empty()) spec.needle_axis = parse_vec3(args.needle_axis, "--needle-axis", false);
@@ -92,6 +101,8 @@ void run_generate(GenerateArgs& args) {
   j["speckle"] = num(spec.speckle);
   j["attenuation_db_per_cm"] = num(spec.attenuation_db_per_cm);
   j["time_s"] = num(spec.time_s);
+  j["realism"] = to_string(spec.realism);
+  if (spec.realism == Realism::Echo) j["speckle_mm"] = num(spec.speckle_mm);
   j["axis"] = vec_json(spec.axis);
   j["image"] = out.filename().string();
   j["truth"] = truth_path.filename().string();
@@ -127,8 +138,15 @@ void add_generate_command(CLI::App& app, int& exit_code) {
   cmd->add_option("--spacing", args->spacing, "Voxel spacing in mm: X or X,Y,Z")->capture_default_str();
   cmd->add_option("--contrast", args->spec.contrast, "1 - target/tissue brightness, 0..1")
       ->capture_default_str();
-  cmd->add_option("--speckle", args->spec.speckle, "Speckle strength, 0..1")->capture_default_str();
-  cmd->add_option("--attenuation", args->spec.attenuation_db_per_cm, "Attenuation, dB/cm round trip")
+  auto* speckle = cmd->add_option("--speckle", args->spec.speckle, "Speckle strength, 0..1 (echo: 1)")
+                      ->capture_default_str();
+  auto* attenuation = cmd->add_option("--attenuation", args->spec.attenuation_db_per_cm,
+                                      "Attenuation, dB/cm round trip (echo: 3)")
+                          ->capture_default_str();
+  cmd->add_option("--realism", args->realism, "Image model: simple, or echo (a probe's sector view)")
+      ->check(CLI::IsMember({"simple", "echo"}))
+      ->capture_default_str();
+  cmd->add_option("--speckle-mm", args->spec.speckle_mm, "Echo: speckle grain (lateral sigma), mm")
       ->capture_default_str();
   cmd->add_option("--time", args->spec.time_s, "Breathing time in s (0 = rest shape)")
       ->capture_default_str();
@@ -136,8 +154,10 @@ void add_generate_command(CLI::App& app, int& exit_code) {
   cmd->add_option("--needle-axis", args->needle_axis, "Needle direction X,Y,Z (cyst-needle)");
   cmd->add_option("--out", args->out, "Image volume (.nrrd, .nhdr, .mha, .mhd)")->required();
   cmd->add_option("--truth", args->truth, "Truth labels volume, inside = 1")->required();
-  cmd->callback([args, &exit_code] {
+  cmd->callback([args, speckle, attenuation, &exit_code] {
     try {
+      args->speckle_given = speckle->count() > 0;
+      args->attenuation_given = attenuation->count() > 0;
       run_generate(*args);
       exit_code = 0;
     } catch (const std::exception& e) {

@@ -48,6 +48,11 @@ tl::expected<PhantomSourceOptions, AcquireError> parse_sim_uri(const std::string
     const auto eq = item.find('=');
     const std::string key = item.substr(0, eq);
     const std::string value = eq == std::string::npos ? "" : item.substr(eq + 1);
+    if (key == "realism") {
+      if (value != "simple" && value != "echo") return invalid(uri, "realism must be simple or echo");
+      if (value == "echo") options.spec = with_echo_realism(options.spec);
+      continue;
+    }
     double x = 0;
     if (!parse_number(value, x)) return invalid(uri, key + "='" + value + "' is not a number");
     if (key == "rate") {
@@ -62,8 +67,14 @@ tl::expected<PhantomSourceOptions, AcquireError> parse_sim_uri(const std::string
     } else if (key == "seed") {
       if (x < 0 || x > 4294967295.0 || x != std::floor(x)) return invalid(uri, "seed must be a 32-bit unsigned integer");
       options.spec.seed = static_cast<std::uint32_t>(x);
+    } else if (key == "oblique") {
+      if (x != 0 && x != 1) return invalid(uri, "oblique must be 0 or 1");
+      options.spec.oblique = x == 1;
+    } else if (key == "contrast") {
+      if (!(x >= 0 && x <= 1)) return invalid(uri, "contrast must be in [0, 1]");
+      options.spec.contrast = static_cast<float>(x);
     } else {
-      return invalid(uri, "unknown option '" + key + "' (rate, size, count, seed)");
+      return invalid(uri, "unknown option '" + key + "' (rate, size, count, seed, contrast, realism, oblique)");
     }
   }
   return options;

@@ -1,7 +1,9 @@
+#include <Eigen/Geometry>
 #include <algorithm>
 #include <cmath>
 #include <stdexcept>
 
+#include "sim/internal/echo.h"
 #include "sim/internal/edt.h"
 #include "sim/internal/parallel.h"
 #include "sim/internal/shapes.h"
@@ -36,6 +38,8 @@ void validate(const PhantomSpec& spec) {
   if (!(spec.attenuation_db_per_cm >= 0.0f && spec.attenuation_db_per_cm <= 20.0f))
     bad("attenuation_db_per_cm must be in [0, 20]");
   if (!std::isfinite(spec.time_s)) bad("time_s must be finite");
+  if (spec.realism == Realism::Echo && !(spec.speckle_mm >= 0.1f && spec.speckle_mm <= 5.0f))
+    bad("speckle_mm must be in [0.1, 5] mm");
 }
 
 // The deepest voxel of the target (largest distance to the background). The distance transform
@@ -71,22 +75,36 @@ Vec3i deepest_voxel(const volume::Volume& truth) {
 
 const std::vector<std::string>& phantom_names() {
   static const std::vector<std::string> names{"sphere", "ellipsoid", "torus", "cyst-needle",
-                                              "double-torus"};
+                                              "double-torus", "lv"};
   return names;
 }
 
-Phantom make_phantom(const PhantomSpec& spec) {
-  validate(spec);
-  const Vec3i dims = Vec3i::Constant(spec.size_vox);
-  const Vec3f origin_mm = Vec3f::Zero();  // z = 0 is the transducer face: depth grows with k
-  const Shape shape(spec, origin_mm);
+Realism parse_realism(const std::string& name) {
+  if (name == "simple") return Realism::Simple;
+  if (name == "echo") return Realism::Echo;
+  throw std::invalid_argument("realism: unknown mode '" + name + "' (simple, echo)");
+}
 
-  Phantom out;
-  out.name = spec.phantom;
-  out.genus = internal::shape_genus(shape.kind());
-  out.image = volume::Volume(dims, spec.spacing_mm, origin_mm, volume::VoxelType::UInt8);
-  out.truth = volume::Volume(dims, spec.spacing_mm, origin_mm, volume::VoxelType::UInt8);
+const char* to_string(Realism realism) { return realism == Realism::Echo ? "echo" : "simple"; }
 
+volume::Mat3f oblique_direction() {
+  const float ax = 30.0f * 3.14159265f / 180.0f, az = 20.0f * 3.14159265f / 180.0f;
+  return (Eigen::AngleAxisf(az, Vec3f::UnitZ()) * Eigen::AngleAxisf(ax, Vec3f::UnitX())).toRotationMatrix();
+}
+
+PhantomSpec with_echo_realism(PhantomSpec spec) {
+  spec.realism = Realism::Echo;
+  spec.speckle = 1.0f;
+  spec.attenuation_db_per_cm = 3.0f;
+  return spec;
+}
+
+namespace {
+
+// The simple image model (see Realism::Simple); its bytes are fixed by the existing results.
+void render_simple(const PhantomSpec& spec, const Shape& shape, Phantom& out) {
+  const Vec3i dims = out.image.dims();
+  const Vec3f origin_mm = out.image.origin_mm();
   const auto speckle = spec.speckle > 0.0f ? internal::speckle_field(spec.seed, dims) : nullptr;
   const int nx = dims.x(), ny = dims.y(), nz = dims.z();
   const std::size_t slice = static_cast<std::size_t>(nx) * ny;
@@ -143,9 +161,32 @@ Phantom make_phantom(const PhantomSpec& spec) {
       }
     }
   });
+}
+
+}  // namespace
+
+Phantom make_phantom(const PhantomSpec& spec) {
+  validate(spec);
+  const Vec3i dims = Vec3i::Constant(spec.size_vox);
+  const Vec3f origin_mm = Vec3f::Zero();  // z = 0 is the transducer face: depth grows with k
+  const Shape shape(spec, origin_mm);
+
+  Phantom out;
+  out.name = spec.phantom;
+  out.genus = internal::shape_genus(shape.kind());
+  out.image = volume::Volume(dims, spec.spacing_mm, origin_mm, volume::VoxelType::UInt8);
+  out.truth = volume::Volume(dims, spec.spacing_mm, origin_mm, volume::VoxelType::UInt8);
+  if (spec.realism == Realism::Echo)
+    internal::render_echo(spec, shape, out.image, out.truth);
+  else
+    render_simple(spec, shape, out);
 
   out.seed_index = deepest_voxel(out.truth);
   out.seed_mm = out.image.index_to_mm(out.seed_index.cast<float>());
+  if (spec.oblique) {  // seed_mm stays in the grid frame, where the pipeline runs
+    out.image.set_direction(oblique_direction());
+    out.truth.set_direction(oblique_direction());
+  }
   return out;
 }
 
@@ -157,6 +198,8 @@ acquire::RawVolume to_raw(const volume::Volume& image, std::uint64_t sequence,
   raw.dims = {image.dims().x(), image.dims().y(), image.dims().z()};
   raw.spacing_mm = {image.spacing_mm().x(), image.spacing_mm().y(), image.spacing_mm().z()};
   raw.origin_mm = {image.origin_mm().x(), image.origin_mm().y(), image.origin_mm().z()};
+  for (int c = 0; c < 3; ++c)
+    for (int a = 0; a < 3; ++a) raw.direction[3 * c + a] = image.direction()(a, c);
   switch (image.type()) {
     case volume::VoxelType::UInt8:
       raw.type = acquire::ProbeVoxelType::UInt8;

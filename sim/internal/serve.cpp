@@ -25,6 +25,7 @@
 
 #include "acquire/protocol.h"
 #include "sim/internal/commands.h"
+#include "sim/internal/igtl_serve.h"
 #include "sim/phantom_source.h"
 
 namespace sonomesh::sim::internal {
@@ -41,6 +42,12 @@ struct ServeArgs {
   int size = 64;
   std::uint64_t count = 0;
   std::uint32_t seed = 1;
+  std::string igtl;          // HOST:PORT: an OpenIGTLink server instead of the probe stream
+  int igtl_header = 1;
+  std::string igtl_device = "Image_Reference";
+  bool oblique = false;
+  std::string realism;       // empty: as the --phantom URI says (default simple)
+  float contrast = -1.0f;    // < 0: as the --phantom URI says
   std::uint64_t corrupt_every = 0;
   std::uint64_t drop_every = 0;
   std::uint64_t truncate_every = 0;
@@ -142,6 +149,9 @@ class VolumeFeed {
       phantom_ = *parsed;
       phantom_.spec.size_vox = args.size;
       phantom_.spec.seed = args.seed;
+      if (args.realism == "echo") phantom_.spec = with_echo_realism(phantom_.spec);
+      if (args.contrast >= 0.0f) phantom_.spec.contrast = args.contrast;
+      phantom_.spec.oblique = phantom_.spec.oblique || args.oblique;
       phantom_.rate_hz = args.rate_hz > 0 ? args.rate_hz : 10.0;
     }
   }
@@ -190,8 +200,16 @@ int run_serve(const ServeArgs& args) {
   if (args.rate_hz < 0 || !std::isfinite(args.rate_hz) || (args.replay.empty() && args.rate_hz == 0))
     throw std::invalid_argument("--rate must be > 0 (or 0 with --replay: recorded timestamps)");
   if (args.size < 16) throw std::invalid_argument("--size must be at least 16");
+  if (args.listen.empty() == args.igtl.empty())
+    throw std::invalid_argument("give exactly one of --listen (probe stream) or --igtl HOST:PORT");
   ::signal(SIGPIPE, SIG_IGN);
   VolumeFeed feed(args);
+  if (!args.igtl.empty()) {
+    if (args.corrupt_every || args.drop_every || args.truncate_every || args.disconnect_every)
+      throw std::invalid_argument("the fault options apply to --listen only, not --igtl");
+    IgtlServeOptions options{args.igtl, args.rate_hz, args.count, args.igtl_header, args.igtl_device};
+    return run_igtl_serve(options, [&feed](std::uint64_t sequence) { return feed.next(sequence); });
+  }
   Listener listener(args.listen);
   listener.start();
   std::mt19937 fault_rng(args.fault_seed);
@@ -312,11 +330,20 @@ void add_serve_command(CLI::App& app, int& exit_code) {
   auto* phantom = cmd->add_option("--phantom", args->phantom, "phantom name (sphere, torus, ...)");
   auto* replay = cmd->add_option("--replay", args->replay, "a .usv recording to stream");
   phantom->excludes(replay);
-  cmd->add_option("--listen", args->listen, "unix:PATH or tcp:HOST:PORT")->required();
+  auto* listen = cmd->add_option("--listen", args->listen, "unix:PATH or tcp:HOST:PORT (probe stream)");
+  cmd->add_option("--igtl", args->igtl, "HOST:PORT: act as a PlusServer, OpenIGTLink IMAGE messages")
+      ->excludes(listen);
+  cmd->add_option("--igtl-header", args->igtl_header, "OpenIGTLink header version, 1 or 2 (MESSAGE_ID)")
+      ->check(CLI::IsMember({1, 2}));
+  cmd->add_option("--igtl-device", args->igtl_device, "IMAGE device name");
+  cmd->add_flag("--oblique", args->oblique, "the grid lies obliquely in the world (sim::oblique_direction)");
   cmd->add_option("--rate", args->rate_hz, "volumes per second (replay: 0 = recorded timestamps)");
   cmd->add_option("--size", args->size, "phantom edge in voxels");
   cmd->add_option("--count", args->count, "volumes before end of stream (0 = endless)");
   cmd->add_option("--seed", args->seed, "phantom random seed");
+  cmd->add_option("--realism", args->realism, "image model: simple or echo (a probe's sector view)")
+      ->check(CLI::IsMember({"simple", "echo"}));
+  cmd->add_option("--contrast", args->contrast, "phantom contrast, 0..1")->check(CLI::Range(0.0, 1.0));
   cmd->add_option("--corrupt-every", args->corrupt_every, "flip a bit in every Nth record (header or payload)");
   cmd->add_option("--drop-every", args->drop_every, "skip every Nth record (a sequence gap)");
   cmd->add_option("--truncate-every", args->truncate_every, "send half of every Nth record, then close");

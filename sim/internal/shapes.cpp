@@ -24,6 +24,15 @@ constexpr float kDoubleMajor = 0.28f, kDoubleTube = 0.15f, kDoubleOffset = 0.32f
 constexpr float kCystAxes[3] = {0.42f, 0.36f, 0.5f};
 constexpr float kNeedleOffset = 0.12f;  // needle axis passes this far from the cyst centre
 constexpr float kNeedleTip = 0.62f;     // beyond the cyst in every direction (cyst <= 0.5 R)
+// LV: an apical view's left ventricle, its long axis along the spec axis (the beam by default),
+// apex towards the probe, the base cut by the valve plane. Trabeculae are longitudinal ridges
+// reaching into the cavity: 9 around, ~1.6 voxels deep at 64^3, faded out towards apex and base
+// so each cross-section stays star-shaped around the axis (genus 0 at any size).
+constexpr float kLvAxes[3] = {0.36f, 0.33f, 0.7f};  // u, v, w (apex at -w)
+constexpr float kLvValve = 0.5f;                    // valve plane at c = +0.5 R
+constexpr float kLvValveThick = 0.07f;              // the valve echo's slab, beyond the plane
+constexpr float kLvTrabDepth = 0.05f, kLvBulge = 0.025f;
+constexpr int kLvTrabCount = 9;
 
 float ellipsoid_sdf(const Vec3f& q, const Vec3f& r) {
   // Quilez's bound: exact sign, distance accurate near the surface, which is all we use.
@@ -53,14 +62,16 @@ ShapeKind parse_shape_kind(const std::string& name) {
   if (name == "torus") return ShapeKind::Torus;
   if (name == "cyst-needle") return ShapeKind::CystNeedle;
   if (name == "double-torus") return ShapeKind::DoubleTorus;
+  if (name == "lv") return ShapeKind::Lv;
   throw std::invalid_argument("PhantomSpec.phantom: unknown phantom '" + name +
-                              "' (sphere, ellipsoid, torus, cyst-needle, double-torus)");
+                              "' (sphere, ellipsoid, torus, cyst-needle, double-torus, lv)");
 }
 
 int shape_genus(ShapeKind kind) {
   switch (kind) {
     case ShapeKind::Sphere:
-    case ShapeKind::Ellipsoid: return 0;
+    case ShapeKind::Ellipsoid:
+    case ShapeKind::Lv: return 0;
     case ShapeKind::Torus:
     case ShapeKind::CystNeedle: return 1;
     case ShapeKind::DoubleTorus: return 2;
@@ -86,6 +97,7 @@ Shape::Shape(const PhantomSpec& spec, const Vec3f& origin_mm) : kind_(parse_shap
     case ShapeKind::Torus: bound_ = kTorusMajor + kTorusTube; break;
     case ShapeKind::DoubleTorus: bound_ = kDoubleOffset + kDoubleMajor + kDoubleTube; break;
     case ShapeKind::CystNeedle: bound_ = kCystAxes[2]; break;
+    case ShapeKind::Lv: bound_ = kLvAxes[2] + kLvBulge; break;
   }
   w_ = unit_or_throw(spec.axis, "axis");
   const Vec3f helper = std::abs(w_.x()) < 0.9f ? Vec3f::UnitX() : Vec3f::UnitY();
@@ -131,8 +143,34 @@ float Shape::rest_target_sdf(const Vec3f& q) const {
                                                              kCystAxes[2]) * R);
       return std::max(cyst, -rest_needle_sdf(q));  // the cyst minus the needle
     }
+    case ShapeKind::Lv: return rest_lv_sdf(a, b, c);
   }
   return std::numeric_limits<float>::max();
+}
+
+float Shape::rest_lv_sdf(float a, float b, float c) const {
+  const float R = half_extent_mm_;
+  const float body = ellipsoid_sdf(Vec3f(a, b, c), Vec3f(kLvAxes[0], kLvAxes[1], kLvAxes[2]) * R);
+  const float theta = std::atan2(b, a);
+  const float h = c / R;  // -0.7 apex .. +0.5 valve
+  // Fade: full depth over the mid cavity, none at the apex (h < -0.45) or the valve (h > 0.42).
+  const float fade = std::clamp((h + 0.45f) / 0.25f, 0.0f, 1.0f) * std::clamp((0.42f - h) / 0.15f, 0.0f, 1.0f);
+  const float ridge = 0.5f + 0.5f * std::sin(kLvTrabCount * theta + 2.5f * h);
+  const float bulge = std::sin(2.0f * theta + 1.3f) * std::cos(3.0f * h);  // the uneven wall
+  const float wall = body + R * (fade * kLvTrabDepth * ridge * ridge + kLvBulge * bulge);
+  return std::max(wall, c - kLvValve * R);
+}
+
+float Shape::valve_sdf_mm(const Vec3f& p_mm) const {
+  if (kind_ != ShapeKind::Lv) return std::numeric_limits<float>::max();
+  const float R = half_extent_mm_;
+  const Vec3f q = to_rest(p_mm);
+  const float c = q.dot(w_);
+  const float slab = std::abs(c - (kLvValve + 0.5f * kLvValveThick) * R) - 0.5f * kLvValveThick * R;
+  // The valve ring reaches a little beyond the cavity wall, into the myocardium.
+  const Vec3f ring_axes = Vec3f(kLvAxes[0], kLvAxes[1], kLvAxes[2]) * (1.2f * R);
+  const float ring = ellipsoid_sdf(Vec3f(q.dot(u_), q.dot(v_), c), ring_axes);
+  return scale_ * std::max(slab, ring);
 }
 
 float Shape::rest_needle_sdf(const Vec3f& q) const {

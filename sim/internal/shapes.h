@@ -15,7 +15,7 @@
 
 namespace sonomesh::sim::internal {
 
-enum class ShapeKind { Sphere, Ellipsoid, Torus, CystNeedle, DoubleTorus };
+enum class ShapeKind { Sphere, Ellipsoid, Torus, CystNeedle, DoubleTorus, Lv };
 
 /// Parses a phantom name. @throws std::invalid_argument for an unknown name.
 ShapeKind parse_shape_kind(const std::string& name);
@@ -44,6 +44,9 @@ class Shape {
   float needle_sdf_mm(const Vec3f& p_mm) const;
   /// Both distances at once (the per-voxel hot path: the breathing transform is undone once).
   void evaluate_mm(const Vec3f& p_mm, float& target_sdf_mm, float& needle_sdf_mm) const;
+  /// LV only: signed distance in mm to the valve plane's echo, a slab closing the cavity's base
+  /// (negative inside it); FLT_MAX for other phantoms.
+  float valve_sdf_mm(const Vec3f& p_mm) const;
   /// The needle at the spec's time (moved and scaled with the target).
   std::optional<Needle> needle_at_time() const;
   /// Centre of the volume in mm and the half extent R in mm.
@@ -55,6 +58,7 @@ class Shape {
   Vec3f to_rest(const Vec3f& p_mm) const { return (p_mm - centre_mm_ - shift_mm_) / scale_; }
   float rest_target_sdf(const Vec3f& q) const;
   float rest_needle_sdf(const Vec3f& q) const;
+  float rest_lv_sdf(float a, float b, float c) const;
 
   ShapeKind kind_;
   Vec3f centre_mm_;

@@ -41,21 +41,26 @@ void GaussianPairs::next(float& a, float& b) {
 
 namespace {
 
-// Speckle grain: lateral (x, y) sigma 1.0 voxel, axial (z) 0.6 voxel; radius 2 taps each.
-constexpr int kRadius = 2;
+using Taps = std::vector<float>;  // 2 r + 1 normalised Gaussian weights
 
-std::array<float, 2 * kRadius + 1> gaussian_taps(float sigma) {
-  std::array<float, 2 * kRadius + 1> w{};
+// Radius of the taps for a sigma: 2 up to sigma 1 voxel (the simple mode's five taps, so its field
+// keeps its bytes), else 2.5 sigma, where the weight has fallen below 5 %.
+int taps_radius(float sigma_vox) {
+  return sigma_vox <= 1.0f ? 2 : static_cast<int>(std::ceil(2.5f * sigma_vox));
+}
+
+Taps gaussian_taps(float sigma, int radius) {
+  Taps w(2 * radius + 1);
   float sum = 0.0f;
-  for (int t = -kRadius; t <= kRadius; ++t) {
-    w[t + kRadius] = std::exp(-0.5f * static_cast<float>(t * t) / (sigma * sigma));
-    sum += w[t + kRadius];
+  for (int t = -radius; t <= radius; ++t) {
+    w[t + radius] = std::exp(-0.5f * static_cast<float>(t * t) / (sigma * sigma));
+    sum += w[t + radius];
   }
   for (float& x : w) x /= sum;
   return w;
 }
 
-float sum_of_squares(const std::array<float, 2 * kRadius + 1>& w) {
+float sum_of_squares(const Taps& w) {
   float s = 0.0f;
   for (float x : w) s += x * x;
   return s;
@@ -65,7 +70,8 @@ float sum_of_squares(const std::array<float, 2 * kRadius + 1>& w) {
 // kernel lies inside the input: the input is generated with a margin of kRadius per side, so the
 // field is statistically the same at the border as in the middle.
 std::vector<float> smooth_valid(const std::vector<float>& in, volume::Vec3i& dims, int axis,
-                                const std::array<float, 2 * kRadius + 1>& w) {
+                                const Taps& w) {
+  const int kRadius = static_cast<int>(w.size() / 2);
   const volume::Vec3i in_dims = dims;
   volume::Vec3i out_dims = in_dims;
   out_dims[axis] -= 2 * kRadius;
@@ -96,8 +102,14 @@ std::vector<float> smooth_valid(const std::vector<float>& in, volume::Vec3i& dim
   return out;
 }
 
-std::shared_ptr<const std::vector<float>> build_field(std::uint32_t seed, const volume::Vec3i& dims) {
-  volume::Vec3i padded = dims + volume::Vec3i::Constant(2 * kRadius);
+std::shared_ptr<const std::vector<float>> build_field(std::uint32_t seed, const volume::Vec3i& dims,
+                                                      const Vec3f& sigma_vox) {
+  const Taps wx = gaussian_taps(sigma_vox.x(), taps_radius(sigma_vox.x()));
+  const Taps wy = gaussian_taps(sigma_vox.y(), taps_radius(sigma_vox.y()));
+  const Taps wz = gaussian_taps(sigma_vox.z(), taps_radius(sigma_vox.z()));
+  const volume::Vec3i radius(static_cast<int>(wx.size() / 2), static_cast<int>(wy.size() / 2),
+                             static_cast<int>(wz.size() / 2));
+  volume::Vec3i padded = dims + 2 * radius;
   const std::size_t slice = static_cast<std::size_t>(padded.x()) * padded.y();
   std::vector<float> a(2 * slice * padded.z());
   // One generator per padded z slice, seeded from (seed, k): the same bytes for any thread count.
@@ -108,14 +120,12 @@ std::shared_ptr<const std::vector<float>> build_field(std::uint32_t seed, const 
       for (std::size_t t = 0; t < slice; ++t) gauss.next(p[2 * t], p[2 * t + 1]);
     }
   });
-  const auto lateral = gaussian_taps(1.0f);
-  const auto axial = gaussian_taps(0.6f);
-  a = smooth_valid(a, padded, 0, lateral);
-  a = smooth_valid(a, padded, 1, lateral);
-  a = smooth_valid(a, padded, 2, axial);
+  a = smooth_valid(a, padded, 0, wx);
+  a = smooth_valid(a, padded, 1, wy);
+  a = smooth_valid(a, padded, 2, wz);
   // Each smoothed component has variance sum(w^2); |c| is then Rayleigh with mean
   // sigma * sqrt(pi / 2). Dividing by that mean makes the field a unit-mean multiplier.
-  const float sigma = std::sqrt(sum_of_squares(lateral) * sum_of_squares(lateral) * sum_of_squares(axial));
+  const float sigma = std::sqrt(sum_of_squares(wx) * sum_of_squares(wy) * sum_of_squares(wz));
   const float inv_mean = 1.0f / (sigma * std::sqrt(3.14159265358979f / 2.0f));
   const std::size_t out_slice = static_cast<std::size_t>(dims.x()) * dims.y();
   auto field = std::make_shared<std::vector<float>>(out_slice * dims.z());
@@ -128,17 +138,25 @@ std::shared_ptr<const std::vector<float>> build_field(std::uint32_t seed, const 
 
 }  // namespace
 
-std::shared_ptr<const std::vector<float>> speckle_field(std::uint32_t seed, const volume::Vec3i& dims) {
+std::shared_ptr<const std::vector<float>> speckle_field(std::uint32_t seed, const volume::Vec3i& dims,
+                                                        const Vec3f& sigma_vox) {
+  // Two fields are kept: a simple-mode and an echo-mode stream alternate between at most two.
+  struct Entry {
+    std::uint32_t seed = 0;
+    volume::Vec3i dims = volume::Vec3i::Zero();
+    Vec3f sigma = Vec3f::Zero();
+    std::shared_ptr<const std::vector<float>> field;
+  };
   static std::mutex mutex;
-  static std::uint32_t cached_seed = 0;
-  static volume::Vec3i cached_dims = volume::Vec3i::Zero();
-  static std::shared_ptr<const std::vector<float>> cached;
+  static Entry cache[2];
+  static int next_slot = 0;
   std::lock_guard lock(mutex);
-  if (cached && cached_seed == seed && cached_dims == dims) return cached;
-  cached = build_field(seed, dims);
-  cached_seed = seed;
-  cached_dims = dims;
-  return cached;
+  for (const Entry& e : cache)
+    if (e.field && e.seed == seed && e.dims == dims && e.sigma == sigma_vox) return e.field;
+  Entry& slot = cache[next_slot];
+  next_slot = 1 - next_slot;
+  slot = Entry{seed, dims, sigma_vox, build_field(seed, dims, sigma_vox)};
+  return slot.field;
 }
 
 }  // namespace sonomesh::sim::internal

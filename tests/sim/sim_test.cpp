@@ -86,7 +86,7 @@ INSTANTIATE_TEST_SUITE_P(
     });
 
 TEST(SimTopology, GenusFieldMatchesNames) {
-  EXPECT_EQ(phantom_names().size(), 5u);
+  EXPECT_EQ(phantom_names().size(), 6u);
   const std::pair<const char*, int> expected[] = {
       {"sphere", 0}, {"ellipsoid", 0}, {"torus", 1}, {"cyst-needle", 1}, {"double-torus", 2}};
   for (const auto& [name, genus] : expected) {
@@ -520,12 +520,42 @@ TEST_F(ProbeSimCli, GenerateWritesVolumeTruthAndSidecar) {
   EXPECT_TRUE(truth_back.volume.spacing_mm().isApprox(Vec3f::Constant(0.4f)));
 }
 
+TEST_F(ProbeSimCli, GenerateEchoUsesThePresetUnlessTold) {
+  const auto vol = dir_ / "lv.nrrd", truth = dir_ / "lv_truth.nrrd";
+  const auto r = run("generate --phantom lv --size 48 --realism echo --contrast 0.4 --speckle-mm 0.8 --out " +
+                         vol.string() + " --truth " + truth.string(),
+                     dir_);
+  ASSERT_EQ(r.status, 0) << r.err;
+  std::ifstream js(dir_ / "lv.json");
+  const auto j = nlohmann::json::parse(js);
+  EXPECT_EQ(j.at("realism"), "echo");
+  EXPECT_FLOAT_EQ(j.at("speckle").get<float>(), 1.0f);
+  EXPECT_FLOAT_EQ(j.at("attenuation_db_per_cm").get<float>(), 3.0f);
+  EXPECT_FLOAT_EQ(j.at("speckle_mm").get<float>(), 0.8f);
+  PhantomSpec s = spec_for("lv", 48);
+  s.contrast = 0.4f;
+  s = with_echo_realism(s);
+  s.speckle_mm = 0.8f;
+  const auto back = volume::read_volume(vol);
+  ASSERT_TRUE(back) << back.error->message;
+  EXPECT_EQ(back.volume.u8(), make_phantom(s).image.u8());
+  // An explicit --speckle wins over the preset.
+  const auto r2 = run("generate --phantom lv --size 48 --realism echo --speckle 0.5 --out " + vol.string() +
+                          " --truth " + truth.string(),
+                      dir_);
+  ASSERT_EQ(r2.status, 0) << r2.err;
+  std::ifstream js2(dir_ / "lv.json");
+  EXPECT_FLOAT_EQ(nlohmann::json::parse(js2).at("speckle").get<float>(), 0.5f);
+}
+
 TEST_F(ProbeSimCli, BadArgumentsGiveOneLineAndNonZeroExit) {
   const std::string files = " --out " + (dir_ / "a.nrrd").string() + " --truth " + (dir_ / "b.nrrd").string();
   for (const std::string& args :
        {std::string("generate --phantom cube") + files, std::string("generate --phantom sphere --size 4") + files,
         std::string("generate --phantom sphere --spacing 1,2") + files,
         std::string("generate --phantom sphere --out x.png --truth y.nrrd"), std::string("generate"),
+        std::string("generate --phantom lv --realism photo") + files,
+        std::string("generate --phantom lv --realism echo --speckle-mm 0") + files,
         std::string("bogus")}) {
     const auto r = run(args, dir_);
     EXPECT_NE(r.status, 0) << args;
