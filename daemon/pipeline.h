@@ -99,6 +99,9 @@ struct PipelineResult {
   /// "stalled near the seed", "touches the volume edge", "leak bound", "implausibly small").
   bool quality_ok = true;
   std::vector<std::string> quality_reasons;
+  /// The speckle's grain measured around the seed and the pre-filter's sigma it chose (mm).
+  float speckle_grain_mm = 0.0f;
+  float smooth_sigma_mm = 0.0f;
 
   StageTimings timings;
   std::optional<volume::Volume> labels;     // UInt8 on the input grid, inside = 1
@@ -128,10 +131,12 @@ PipelineResult run_pipeline(const volume::Volume& input, const Vec3f& seed_mm,
                             const PipelineConfig& config, PipelineBuffers& buffers,
                             std::stop_token stop = {});
 
-/// Why `seed_mm` cannot start a balloon in `input` (outside the volume, or in bright tissue: the
-/// local mean around it is above the volume's Otsu threshold between dark target and tissue), or
-/// nullopt if it can. Used by `process` and by the daemon's seed tracking.
-std::optional<std::string> check_seed(const volume::Volume& input, const Vec3f& seed_mm);
+/// Why `seed_mm` cannot start a balloon in `input` (outside the volume, or, for a dark target, in
+/// bright tissue: the local mean around it is above the volume's Otsu threshold between dark target
+/// and tissue; bright and auto check the bounds only, the balloon's own check decides), or nullopt
+/// if it can. Used by `process` and by the daemon's seed tracking.
+std::optional<std::string> check_seed(const volume::Volume& input, const Vec3f& seed_mm,
+                                      TargetPolarity target = TargetPolarity::Dark);
 
 /// Nearest voxel index of a point in mm (rounded).
 Vec3i seed_index_of(const volume::Volume& input, const Vec3f& seed_mm);

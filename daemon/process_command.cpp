@@ -1,10 +1,12 @@
 // `sonomeshd process INPUT --seed-index I,J,K | --seed-mm X,Y,Z --mesh OUT.ply [--labels OUT.nrrd]
-//  [--report OUT.json] [--balloon OUT.ply] [--vdb OUT.vdb]`: one volume through the pipeline.
+//  [--report OUT.json] [--balloon OUT.ply] [--vdb OUT.vdb] [--target dark|bright|auto]`: one
+//  volume through the pipeline.
 #include <unistd.h>
 
 #include <array>
 #include <cstdio>
 #include <filesystem>
+#include <map>
 #include <memory>
 #include <optional>
 #include <sstream>
@@ -28,6 +30,7 @@ struct ProcessArgs {
   std::string input;
   std::string seed_index, seed_mm;
   std::string mesh, labels, report, balloon, vdb;
+  TargetPolarity target = TargetPolarity::Dark;
 };
 
 int fail(int code, const std::string& message) {
@@ -110,9 +113,10 @@ int run_process(const ProcessArgs& args) {
   } else {
     seed_mm = Vec3f((*triple)[0], (*triple)[1], (*triple)[2]);
   }
-  if (auto problem = check_seed(input, seed_mm)) return fail(kFailed, *problem);
+  if (auto problem = check_seed(input, seed_mm, args.target)) return fail(kFailed, *problem);
 
   PipelineConfig config;
+  config.target = args.target;
   config.want_labels = true;  // also needed for the deepest interior point in the report
   config.want_indicator = !args.vdb.empty();
   const PipelineResult result = run_pipeline(input, seed_mm, config);
@@ -124,6 +128,13 @@ int run_process(const ProcessArgs& args) {
       return fail(kFailed, *problem);
   }
   if (!result.ok) return fail(kFailed, args.input + ": " + result.error);
+  // A suspect result is still written (DESIGN.md): one warning line, exit 0.
+  if (!result.quality_ok) {
+    std::string reasons;
+    for (const std::string& r : result.quality_reasons) reasons += (reasons.empty() ? "" : ", ") + r;
+    std::fprintf(stderr, "sonomeshd process: warning: %s: result is suspect (%s)\n", args.input.c_str(),
+                 reasons.c_str());
+  }
 
   if (auto problem = internal::write_mesh_ply(result.mesh, args.mesh)) return fail(kFailed, *problem);
   if (!args.balloon.empty())
@@ -154,6 +165,12 @@ void add_process_command(CLI::App& app, int& exit_code) {
   cmd->add_option("--report", args->report, "Output report (JSON)");
   cmd->add_option("--balloon", args->balloon, "Output balloon mesh with per-vertex stop reasons (PLY)");
   cmd->add_option("--vdb", args->vdb, "Output indicator function (OpenVDB)");
+  cmd->add_option("--target", args->target, "Target polarity: dark (default), bright, auto")
+      ->transform(CLI::CheckedTransformer(
+          std::map<std::string, TargetPolarity>{{"dark", TargetPolarity::Dark},
+                                                {"bright", TargetPolarity::Bright},
+                                                {"auto", TargetPolarity::Auto}},
+          CLI::ignore_case));
   cmd->callback([args, &exit_code] { exit_code = run_process(*args); });
 }
 

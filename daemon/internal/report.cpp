@@ -27,6 +27,11 @@ nlohmann::json report_json(const PipelineResult& result, const std::string& inpu
   report["seed"] = {{"index", vec_json(seed_index_of(input, seed_mm))}, {"mm", vec_json(seed_mm)}};
   report["ok"] = result.ok;
   if (!result.ok) report["error"] = result.error;
+  report["target"] = to_string(result.target);
+  report["quality"] = result.quality_ok ? "ok" : "suspect";
+  report["quality_reasons"] = result.quality_reasons;
+  report["smoothing"] = {{"sigma_mm", result.smooth_sigma_mm},
+                         {"speckle_grain_mm", result.speckle_grain_mm}};
   const StageTimings& t = result.timings;
   nlohmann::json& timings = report["timings_ms"];
   for (const auto& [stage, ms] : t.stages()) timings[stage] = ms;
@@ -36,6 +41,9 @@ nlohmann::json report_json(const PipelineResult& result, const std::string& inpu
   report["balloon"] = {{"iterations", result.balloon_iterations},
                        {"converged", result.balloon_converged},
                        {"tau_cost", result.balloon_stats.tau_cost_used},
+                       {"seed_level", result.balloon_stats.seed_level},
+                       {"seed_sigma", result.balloon_stats.seed_sigma},
+                       {"tissue_level", result.balloon_stats.tissue_level},
                        {"vertices", result.balloon.vertices.size()},
                        {"faces", result.balloon.triangles.size()},
                        {"stop_reasons",

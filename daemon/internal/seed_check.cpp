@@ -68,12 +68,17 @@ float otsu_threshold(const Volume& input) {
 
 }  // namespace
 
-std::optional<std::string> check_seed(const Volume& input, const Vec3f& seed_mm) {
+std::optional<std::string> check_seed(const Volume& input, const Vec3f& seed_mm, TargetPolarity target) {
   if (input.empty()) return "the volume is empty";
   if (!seed_mm.allFinite()) return "the seed is not a finite point";
   if (!input.contains_mm(seed_mm))
     return "seed " + format_point(seed_mm) + " mm is outside the volume " +
            format_point(input.min_mm()) + ".." + format_point(input.max_mm()) + " mm";
+  // Auto: the pipeline decides from the seed. Bright: Otsu's one split does not separate a bright
+  // organ from the fat around it when the volume has brighter classes still (CT: the spleen at 56,
+  // the split at 60 between soft tissue and contrast, bone); the balloon's own check on the
+  // inverted image decides.
+  if (target != TargetPolarity::Dark) return std::nullopt;
   // Mean over a 5³ neighbourhood: single speckle voxels are bright inside a dark cyst too, so the
   // decision needs a local average, not one voxel.
   const Vec3i centre = input.mm_to_index(seed_mm).array().round().cast<int>();

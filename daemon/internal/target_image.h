@@ -1,0 +1,38 @@
+#pragma once
+/// @file
+/// @brief The image the balloon sees (docs/stopping.md): the target's polarity resolved, a bright
+/// target inverted into a dark one, and a probe's no-data region (zeros outside the sector) kept
+/// from acting as a darker target; plus the quality verdict on the result.
+
+#include <cstdint>
+#include <vector>
+
+#include "daemon/pipeline.h"
+
+namespace sonomesh::daemon::internal {
+
+/// Voxels outside a probe's sector: value exactly 0 and connected through such voxels to the
+/// volume's border. Empty when there is no such region or it covers under 2 % of the volume (a
+/// simulator volume, a zero speckle voxel). Index as Volume::linear_index.
+std::vector<std::uint8_t> no_data_mask(const volume::Volume& input);
+
+/// Dark or bright from the seed region against its surroundings: along 64 rays from the seed, the
+/// first sustained departure of the local mean (a cube of about one speckle grain) from the seed's
+/// level, upwards (a brighter wall: a dark target) or downwards (a bright target). The majority
+/// decides; a tie or no departure at all is dark (the tool's default).
+TargetPolarity decide_polarity(const volume::Volume& input, const Vec3f& seed_mm, float grain_mm);
+
+/// What the balloon segments as a dark target, as Float32: the input inverted (max − I) for a
+/// bright target; for a dark one with a no-data region, that region filled with the nearest data
+/// (zeros are darker than any dark target: left as they are, the balloon runs out into them).
+/// Returns false when the input can be used as it is.
+bool working_image(const volume::Volume& input, TargetPolarity target,
+                   const std::vector<std::uint8_t>& no_data, volume::Volume& out);
+
+/// Fills result.quality_ok / quality_reasons (DESIGN.md "the quality verdict") from the balloon and
+/// the final surface: stalled near the seed, implausibly small, touching the volume's edge or the
+/// sector's (no data beyond), the iteration limit, the leak bound.
+void quality_verdict(const volume::Volume& input, const std::vector<std::uint8_t>& no_data,
+                     const Vec3f& seed_mm, PipelineResult& result);
+
+}  // namespace sonomesh::daemon::internal
