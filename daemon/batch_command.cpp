@@ -63,10 +63,14 @@ nlohmann::json run_item(const BatchItem& item, const fs::path& out, PipelineBuff
     if (!input.contains_index(ijk)) return failed("seed_index is outside the volume");
     seed_mm = input.index_to_mm(ijk.cast<float>());
   } else {
-    seed_mm = Vec3f((*item.seed_mm)[0], (*item.seed_mm)[1], (*item.seed_mm)[2]);
+    // seed_mm is in the world frame (LPS mm); the pipeline runs in the grid frame.
+    seed_mm = internal::seed_world_to_grid_mm(
+        input, Vec3f((*item.seed_mm)[0], (*item.seed_mm)[1], (*item.seed_mm)[2]));
   }
-  line["seed_mm"] = {seed_mm.x(), seed_mm.y(), seed_mm.z()};
-  if (auto problem = check_seed(input, seed_mm)) return failed(*problem);
+  const Vec3f seed_world_mm = input.grid_to_world_mm(seed_mm);
+  line["seed_mm"] = {seed_world_mm.x(), seed_world_mm.y(), seed_world_mm.z()};
+  if (auto problem = check_seed(input, seed_mm, item.target.value_or(TargetPolarity::Dark)))
+    return failed(*problem);
 
   PipelineConfig config;
   if (item.target) config.target = *item.target;
@@ -85,7 +89,7 @@ nlohmann::json run_item(const BatchItem& item, const fs::path& out, PipelineBuff
   line["report"] = report_path.filename().string();
   if (!result.ok) return failed(result.error);
   const fs::path mesh_path = out / (item.id + ".ply");
-  if (auto problem = internal::write_mesh_ply(result.mesh, mesh_path)) return failed(*problem);
+  if (auto problem = internal::write_mesh_ply(result.mesh, input, mesh_path)) return failed(*problem);
   line["status"] = "processed";
   line["mesh"] = mesh_path.filename().string();
   line["genus"] = result.topology.genus;

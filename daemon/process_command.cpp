@@ -30,6 +30,7 @@ struct ProcessArgs {
   std::string input;
   std::string seed_index, seed_mm;
   std::string mesh, labels, report, balloon, vdb;
+  bool labels_description = false;  // an ITK-SNAP label description beside the labels
   TargetPolarity target = TargetPolarity::Dark;
 };
 
@@ -98,6 +99,8 @@ int run_process(const ProcessArgs& args) {
   auto read = volume::read_volume(args.input);
   if (!read) return fail(kFailed, read.error->message);
   const volume::Volume& input = read.volume;
+  if (!read.note.empty())
+    std::fprintf(stderr, "sonomeshd process: note: %s: %s\n", args.input.c_str(), read.note.c_str());
 
   Vec3f seed_mm;
   if (!args.seed_index.empty()) {
@@ -111,7 +114,8 @@ int run_process(const ProcessArgs& args) {
     }
     seed_mm = input.index_to_mm(ijk.cast<float>());
   } else {
-    seed_mm = Vec3f((*triple)[0], (*triple)[1], (*triple)[2]);
+    // --seed-mm is in the world frame (LPS mm); the pipeline runs in the grid frame.
+    seed_mm = internal::seed_world_to_grid_mm(input, Vec3f((*triple)[0], (*triple)[1], (*triple)[2]));
   }
   if (auto problem = check_seed(input, seed_mm, args.target)) return fail(kFailed, *problem);
 
@@ -136,12 +140,15 @@ int run_process(const ProcessArgs& args) {
                  reasons.c_str());
   }
 
-  if (auto problem = internal::write_mesh_ply(result.mesh, args.mesh)) return fail(kFailed, *problem);
+  if (auto problem = internal::write_mesh_file(result.mesh, input, args.mesh))
+    return fail(kFailed, *problem);
   if (!args.balloon.empty())
-    if (auto problem = internal::write_balloon_ply(result.balloon, result.balloon_stop, args.balloon))
+    if (auto problem =
+            internal::write_balloon_ply(result.balloon, result.balloon_stop, input, args.balloon))
       return fail(kFailed, *problem);
   if (!args.labels.empty() && result.labels)
-    if (auto problem = internal::write_labels(*result.labels, args.labels))
+    if (auto problem = internal::write_labels(*result.labels, input, args.labels,
+                                              {args.labels_description}))
       return fail(kFailed, *problem);
   if (!args.vdb.empty() && result.indicator)
     if (auto problem = internal::write_indicator_vdb(*result.indicator, args.vdb))
@@ -155,13 +162,19 @@ void add_process_command(CLI::App& app, int& exit_code) {
   auto args = std::make_shared<ProcessArgs>();
   CLI::App* cmd = app.add_subcommand(
       "process", "Segment one volume: smooth, balloon, reconstruct; write mesh, labels, report");
-  cmd->add_option("input", args->input, "Input volume (.nrrd, .nhdr, .mha, .mhd)")->required();
+  cmd->add_option("input", args->input, "Input volume (.nrrd, .nhdr, .mha, .mhd, .nii, .nii.gz)")
+      ->required();
   auto* by_index =
       cmd->add_option("--seed-index", args->seed_index, "Seed voxel I,J,K inside the target");
   auto* by_mm = cmd->add_option("--seed-mm", args->seed_mm, "Seed point X,Y,Z in mm");
   by_index->excludes(by_mm);
-  cmd->add_option("--mesh", args->mesh, "Output surface, binary PLY in mm")->required();
-  cmd->add_option("--labels", args->labels, "Output label volume on the input grid (NRRD)");
+  cmd->add_option("--mesh", args->mesh, "Output surface in world LPS mm (.ply binary, .stl, .obj)")
+      ->required();
+  cmd->add_option("--labels", args->labels,
+                  "Output label volume on the input grid (.nrrd, .nhdr, .mha, .mhd, .nii, .nii.gz, "
+                  "or a 3D Slicer segmentation .seg.nrrd)");
+  cmd->add_flag("--labels-description", args->labels_description,
+                "Also write an ITK-SNAP label description (X.label.txt) beside the labels");
   cmd->add_option("--report", args->report, "Output report (JSON)");
   cmd->add_option("--balloon", args->balloon, "Output balloon mesh with per-vertex stop reasons (PLY)");
   cmd->add_option("--vdb", args->vdb, "Output indicator function (OpenVDB)");
