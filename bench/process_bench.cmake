@@ -6,3 +6,7 @@ if(TARGET sonomesh::daemon_core)
   add_executable(accuracy_report accuracy_report.cpp)
   target_link_libraries(accuracy_report PRIVATE daemon_run sonomesh::sim sonomesh_warnings)
 endif()
+if(TARGET sonomesh::daemon_core)  # breathing_bench: grid sizes and FFTW plans over a stream
+  add_executable(breathing_bench breathing_bench.cpp)
+  target_link_libraries(breathing_bench PRIVATE daemon_run sonomesh::sim sonomesh_warnings)
+endif()

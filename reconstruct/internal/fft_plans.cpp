@@ -1,11 +1,17 @@
 #include "reconstruct/internal/fft_plans.h"
 
 #include <fftw3.h>
+#include <unistd.h>
 
+#include <algorithm>
+#include <cstdio>
+#include <cstdlib>
+#include <filesystem>
 #include <map>
 #include <mutex>
 #include <new>
 #include <tuple>
+#include <vector>
 
 namespace sonomesh::reconstruct::internal {
 namespace {
@@ -25,10 +31,49 @@ PlanCache& cache() {
   return *c;
 }
 
+bool friendly(int n) {
+  for (int p : {2, 3, 5})
+    while (n % p == 0) n /= p;
+  return n == 1;
+}
+
+const std::vector<int>& ladder() {
+  static const std::vector<int> sizes = [] {
+    std::vector<int> v{8};
+    while (v.back() < 1024) {
+      int n = (v.back() * 11 + 9) / 10;  // ceil(1.1 * previous)
+      while (!friendly(n) || n % 2 != 0) ++n;
+      v.push_back(n);
+    }
+    return v;
+  }();
+  return sizes;
+}
+
+// Callers hold the planner mutex: FFTW's wisdom functions share the planner's state.
+bool import_wisdom_locked() {
+  const std::string path = fft_wisdom_path();
+  if (path.empty() || access(path.c_str(), R_OK) != 0) return false;
+  return fftwf_import_wisdom_from_filename(path.c_str()) != 0;
+}
+
+void export_wisdom_locked() {
+  const std::string path = fft_wisdom_path();
+  if (path.empty()) return;
+  std::error_code ec;
+  std::filesystem::create_directories(std::filesystem::path(path).parent_path(), ec);
+  // Temporary file + rename: a concurrent process never reads half a file.
+  const std::string tmp = path + ".tmp." + std::to_string(getpid());
+  if (fftwf_export_wisdom_to_filename(tmp.c_str()) == 0 ||
+      std::rename(tmp.c_str(), path.c_str()) != 0)
+    std::filesystem::remove(tmp, ec);
+}
+
 fftwf_plan get_plan(const std::array<int, 3>& dims, bool forward, int threads, bool measure) {
   PlanCache& c = cache();
   std::lock_guard lock(c.mutex);
   static const bool threads_ok = fftwf_init_threads() != 0;
+  static const bool wisdom_imported [[maybe_unused]] = import_wisdom_locked();
   const Key key{dims[0], dims[1], dims[2], forward, threads, measure};
   if (auto it = c.plans.find(key); it != c.plans.end()) {
     ++c.stats.cache_hits;
@@ -54,10 +99,37 @@ fftwf_plan get_plan(const std::array<int, 3>& dims, bool forward, int threads, b
   if (!plan) throw std::bad_alloc();
   ++c.stats.plans_created;
   c.plans.emplace(key, plan);
+  export_wisdom_locked();
   return plan;
 }
 
 }  // namespace
+
+int fft_ladder_size(int n) {
+  for (int size : ladder())
+    if (size >= n) return size;
+  return 0;
+}
+
+int fft_friendly_size(int n) {
+  n = std::max(n, 8);
+  while (!friendly(n) || n % 2 != 0) ++n;
+  return n;
+}
+
+std::string fft_wisdom_path() {
+  if (const char* p = std::getenv("SONOMESH_FFTW_WISDOM")) return p;
+  const char* xdg = std::getenv("XDG_CACHE_HOME");
+  if (xdg && xdg[0] == '/') return std::string(xdg) + "/sonomesh/fftw-wisdom";
+  const char* home = std::getenv("HOME");
+  if (home && home[0] == '/') return std::string(home) + "/.cache/sonomesh/fftw-wisdom";
+  return "";
+}
+
+bool fft_import_wisdom() {
+  std::lock_guard lock(cache().mutex);
+  return import_wisdom_locked();
+}
 
 FftPlanStats fft_plan_stats() {
   std::lock_guard lock(cache().mutex);

@@ -7,6 +7,7 @@
 #include <array>
 #include <complex>
 #include <cstddef>
+#include <string>
 
 namespace sonomesh::reconstruct::internal {
 
@@ -15,6 +16,22 @@ struct FftPlanStats {
   std::size_t cache_hits = 0;     // requests served from the cache
 };
 FftPlanStats fft_plan_stats();
+
+/// The smallest size of the grid ladder that is >= n (n >= 1): even 2^a·3^b·5^c sizes, each at
+/// least 10 % above the one before (8, 10, 12, 16, 18, 20, 24, 30, 36, 40, 48, ..., 90, 100, 120,
+/// 144, 160, ...). Coarse steps make a target that grows or shrinks by a few voxels keep its grid
+/// size, so its FFTW plans are reused. Returns 0 above the ladder's top (1152).
+int fft_ladder_size(int n);
+/// The smallest even 2^a·3^b·5^c size >= max(n, 8): the fine-grained fallback.
+int fft_friendly_size(int n);
+
+/// Wisdom file: $SONOMESH_FFTW_WISDOM (set but empty: no wisdom file), else
+/// $XDG_CACHE_HOME/sonomesh/fftw-wisdom, else $HOME/.cache/sonomesh/fftw-wisdom; "" if none.
+/// The first plan of a process imports it; every newly made plan exports all wisdom to it (a
+/// temporary file renamed over it). An unreadable or unwritable file is skipped silently.
+std::string fft_wisdom_path();
+/// Imports fft_wisdom_path() now (under the planner lock); false if there is none or it is bad.
+bool fft_import_wisdom();
 
 /// FFTW-aligned float buffer (fftwf_malloc), freed on destruction.
 class FftBuffer {

@@ -22,16 +22,20 @@
 namespace sonomesh::reconstruct {
 namespace {
 
-bool fft_friendly(int n) {
-  for (int p : {2, 3, 5})
-    while (n % p == 0) n /= p;
-  return n == 1;
+// The grid size of an axis needing n cells: the coarse ladder, so a breathing target reuses its
+// FFTW plans; the fine-grained friendly size when the ladder step would pass max_grid_dim, so the
+// cap does not coarsen the cell more than before.
+int grid_size(int n, int max_grid_dim) {
+  const int coarse = internal::fft_ladder_size(n);
+  return coarse > 0 && coarse <= max_grid_dim ? coarse : internal::fft_friendly_size(n);
 }
-int round_up_fft(int n) {
-  // Even sizes keep the r2c layout simple and are faster in FFTW.
-  n = std::max(n, 8);
-  while (!fft_friendly(n) || n % 2 != 0) ++n;
-  return n;
+
+// The finer cell a thin feature needs, rounded down to cell_mm·2^(−k/8) (steps of 9 %): a feature
+// whose width wavers by a few percent between volumes keeps its cell, hence its grid size.
+float quantized_cell_mm(float wanted_mm, float cell_mm) {
+  if (!(wanted_mm < cell_mm)) return cell_mm;
+  const int k = int(std::ceil(8.0 * std::log2(double(cell_mm) / double(wanted_mm)) - 1e-6));
+  return float(double(cell_mm) * std::exp2(-double(k) / 8.0));
 }
 
 void check(bool ok, const std::string& what) {
@@ -69,7 +73,7 @@ Grid make_grid(const PointCloud& s, const PoissonOptions& o, float cell_mm) {
     bool fits = true;
     for (int a = 0; a < 3; ++a) {
       const double span = hi[a] - lo[a] + 2.0 * pad;
-      g.dims[a] = round_up_fft(int(std::ceil(span / g.cell_mm)) + 1);
+      g.dims[a] = grid_size(int(std::ceil(span / g.cell_mm)) + 1, o.max_grid_dim);
       fits = fits && g.dims[a] <= o.max_grid_dim;
     }
     if (fits) break;
@@ -164,7 +168,8 @@ IndicatorGrid poisson_indicator(const PointCloud& s, const PoissonOptions& o) {
     feature_mm = narrowest_feature_mm(s, o.min_feature_cells * o.cell_mm,
                                       kFeatureAreaCells * o.cell_mm * o.cell_mm);
     if (std::isfinite(feature_mm))
-      cell_mm = std::max(feature_mm / o.min_feature_cells, o.min_cell_fraction * o.cell_mm);
+      cell_mm = std::max(quantized_cell_mm(feature_mm / o.min_feature_cells, o.cell_mm),
+                         o.min_cell_fraction * o.cell_mm);
   }
   const Grid g = make_grid(s, o, cell_mm);
   const std::array<int, 3>& d = g.dims;

@@ -1,0 +1,85 @@
+// breathing_bench: a breathing phantom stream through the pipeline, one volume after another with
+// reused buffers (as the daemon's worker runs it): per volume the reconstruction grid, the FFTW
+// plans made for it, the reconstruct stage's time, genus and Dice against the truth.
+//   breathing_bench [--phantom cyst-needle] [--size 128] [--spacing 0.4] [--volumes 40]
+//                   [--rate 10] [--quiet]
+// A breathing target should land on a handful of grid sizes, so plans stop being made after the
+// first few volumes (issue 17).
+#include <CLI/CLI.hpp>
+#include <algorithm>
+#include <cstdio>
+#include <set>
+#include <string>
+#include <tuple>
+#include <vector>
+
+#include "daemon/internal/metrics.h"
+#include "daemon/pipeline.h"
+#include "reconstruct/internal/fft_plans.h"
+#include "sim/sim.h"
+
+int main(int argc, char** argv) {
+  using namespace sonomesh;
+  CLI::App app{"breathing_bench: grid sizes and FFTW plans over a breathing phantom stream"};
+  std::string phantom = "cyst-needle";
+  int size_vox = 128, volumes = 40;
+  float spacing_mm = 0.4f, rate_hz = 10.0f;
+  bool quiet = false;
+  app.add_option("--phantom", phantom);
+  app.add_option("--size", size_vox)->check(CLI::Range(16, 512));
+  app.add_option("--spacing", spacing_mm)->check(CLI::PositiveNumber);
+  app.add_option("--volumes", volumes)->check(CLI::Range(1, 1000));
+  app.add_option("--rate", rate_hz)->check(CLI::PositiveNumber);
+  app.add_flag("--quiet", quiet, "summary only");
+  CLI11_PARSE(app, argc, argv);
+
+  daemon::PipelineConfig config;
+  daemon::PipelineBuffers buffers;
+  std::set<std::tuple<int, int, int>> grids;
+  std::vector<double> reconstruct_ms, total_ms;
+  double dice_min = 1.0, dice_sum = 0.0;
+  int genus_wrong = 0, failed = 0;
+  const std::size_t plans_before = reconstruct::internal::fft_plan_stats().plans_created;
+  if (!quiet)
+    std::printf("%4s %-12s %7s %5s %9s %8s %5s %6s\n", "vol", "grid", "cell_mm", "plans",
+                "recon_ms", "total_ms", "genus", "dice");
+  for (int i = 0; i < volumes; ++i) {
+    const sim::Phantom p = sim::make_phantom({.phantom = phantom,
+                                              .size_vox = size_vox,
+                                              .spacing_mm = volume::Vec3f::Constant(spacing_mm),
+                                              .time_s = float(i) / rate_hz});
+    const std::size_t plans0 = reconstruct::internal::fft_plan_stats().plans_created;
+    const daemon::PipelineResult r = daemon::run_pipeline(p.image, p.seed_mm, config, buffers);
+    const std::size_t plans = reconstruct::internal::fft_plan_stats().plans_created - plans0;
+    if (!r.ok || !r.labels) {
+      ++failed;
+      std::printf("%4d failed: %s\n", i, r.error.c_str());
+      continue;
+    }
+    const double dice = daemon::internal::dice(*r.labels, p.truth);
+    dice_min = std::min(dice_min, dice);
+    dice_sum += dice;
+    genus_wrong += r.topology.genus != p.genus;
+    grids.insert({r.grid_dims.x(), r.grid_dims.y(), r.grid_dims.z()});
+    reconstruct_ms.push_back(r.timings.reconstruct_ms);
+    total_ms.push_back(r.timings.total_ms);
+    if (!quiet)
+      std::printf("%4d %3dx%3dx%3d %7.3f %5zu %9.1f %8.1f %5d %6.4f\n", i, r.grid_dims.x(),
+                  r.grid_dims.y(), r.grid_dims.z(), r.grid_cell_mm, plans, r.timings.reconstruct_ms,
+                  r.timings.total_ms, r.topology.genus, dice);
+  }
+  auto pct = [](std::vector<double> v, double q) {
+    if (v.empty()) return 0.0;
+    std::sort(v.begin(), v.end());
+    return v[std::min(v.size() - 1, std::size_t(q * double(v.size())))];
+  };
+  const int ok = volumes - failed;
+  std::printf(
+      "%s %d³ x%d: grid sizes %zu, FFTW plans %zu, reconstruct p50 %.1f p90 %.1f ms, total p50 "
+      "%.1f ms, genus wrong %d, Dice mean %.4f min %.4f, failed %d\n",
+      phantom.c_str(), size_vox, volumes, grids.size(),
+      reconstruct::internal::fft_plan_stats().plans_created - plans_before,
+      pct(reconstruct_ms, 0.5), pct(reconstruct_ms, 0.9), pct(total_ms, 0.5), genus_wrong,
+      ok > 0 ? dice_sum / ok : 0.0, dice_min, failed);
+  return failed == 0 ? 0 : 1;
+}
