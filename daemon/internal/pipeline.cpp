@@ -31,12 +31,11 @@ void count_stops(const std::vector<segment::StopReason>& stop, StopCounts& count
     }
 }
 
-// The pre-filter's sigma: the speckle's grain where it is clearly coarser than a voxel, else one
-// voxel of the finest axis. Measured grains: the simple simulator 1.06-1.13 voxels (it and the
-// accuracy measured on it stay as they were), its echo mode 1.34-1.44 (96³ sphere at contrast
-// 0.5: Dice 0.41 at one voxel, 0.90 at the grain), real scan-converted echo 2.1. A correlation
-// longer than 3 voxels is not a grain but structure filling the measured cube (a heavily
-// downsampled volume, 4.7 voxels): one voxel too.
+// The pre-filter's sigma: the speckle's grain where it is clearly coarser than a voxel (at least
+// 1.75 voxels), else one voxel of the finest axis. The simple simulator's grain reads up to 1.62
+// voxels next to the needle, where smoothing at it closes the 64³ tunnel; real scan-converted
+// echo reads 2.1. A correlation longer than 3 voxels is structure filling the measured cube, not
+// a grain: one voxel too. docs/stopping.md has the measurements.
 constexpr float kMaxSpeckleGrainMm = 3.0f;
 
 float pre_filter_sigma_mm(const volume::Volume& input, float grain_mm) {
@@ -44,7 +43,7 @@ float pre_filter_sigma_mm(const volume::Volume& input, float grain_mm) {
   const float grain_vox = grain_mm / vox_mm;
   // (Above 3 mm it is not a probe's speckle either, whose grain is its resolution cell, ~0.3-1.5
   // mm: the 4.8× downsampled Philips volume reads 6.6 mm, and smoothing at that leaked.)
-  return grain_vox >= 1.25f && grain_vox <= 3.0f && grain_mm <= kMaxSpeckleGrainMm ? grain_mm : vox_mm;
+  return grain_vox >= 1.75f && grain_vox <= 3.0f && grain_mm <= kMaxSpeckleGrainMm ? grain_mm : vox_mm;
 }
 
 }  // namespace
