@@ -71,9 +71,8 @@ TEST(DaemonRobustness, BadFilesInAReplayDirectoryAreRejectedAndTheRunGoesOn) {
   write_text(vols / "v2.nrrd",  // a good header whose data is cut short
              "NRRD0004\ntype: uint8\ndimension: 3\nsizes: 48 48 48\nencoding: raw\n\nshort");
   write_text(vols / "v3.mha", "ObjectType = Image\nNDims = 3\nDimSize = 4 4\n");
-  write_text(vols / "v4.nrrd",
-             "NRRD0004\ntype: float\ndimension: 3\nsizes: 2 2 2\n"
-             "encoding: ascii\n\n1 2 3 4 5 6 7 8\n");                            // not a probe type
+  write_text(vols / "v4.nrrd",  // an image, not a volume
+             "NRRD0004\ntype: uint8\ndimension: 2\nsizes: 2 2\nencoding: ascii\n\n1 2 3 4\n");
   write_text(vols / "v5.nrrd", "NRRD0004\n" + std::string(3000, '0') + "\n\n");  // issue 19
   write_sphere(vols / "v6.nrrd", 2);
   auto daemon = start_daemon(dir, "replay:" + vols.string(), "daemon");
