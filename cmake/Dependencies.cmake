@@ -56,6 +56,15 @@ find_package(tomlplusplus REQUIRED)
 pkg_check_modules(HTTPLIB REQUIRED IMPORTED_TARGET cpp-httplib)
 add_library(deps::httplib ALIAS PkgConfig::HTTPLIB)
 
+# OpenIGTLink 1.11 (3D Slicer's protocol): Debian's CMake config sets variables only, no target.
+if(NOT TARGET deps::openigtlink)
+  find_path(OPENIGTLINK_INCLUDE_DIR igtlMessageBase.h PATH_SUFFIXES openigtlink REQUIRED)
+  find_library(OPENIGTLINK_LIB OpenIGTLink REQUIRED)
+  add_library(deps::openigtlink INTERFACE IMPORTED GLOBAL)
+  target_include_directories(deps::openigtlink SYSTEM INTERFACE ${OPENIGTLINK_INCLUDE_DIR})
+  target_link_libraries(deps::openigtlink INTERFACE ${OPENIGTLINK_LIB})
+endif()
+
 find_package(GTest REQUIRED)
 find_package(benchmark REQUIRED)
 pkg_check_modules(UMOCKDEV REQUIRED IMPORTED_TARGET umockdev-1.0)

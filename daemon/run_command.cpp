@@ -15,8 +15,10 @@
 
 #include "daemon/commands.h"
 #include "daemon/internal/http_status.h"
+#include "daemon/internal/igtl_server.h"
 #include "daemon/internal/live_runner.h"
 #include "daemon/internal/run_config.h"
+#include "daemon/internal/run_options.h"
 #include "daemon/internal/run_sources.h"
 
 namespace sonomesh::daemon {
@@ -36,6 +38,9 @@ struct RunFlags {
   double rate_hz = 0;
   std::string record;
   std::uint64_t keep_meshes = 0;
+  std::string target;
+  std::string igtl_listen;
+  bool igtl_any_address = false;
   // Which were given (flags override the file only when given).
   CLI::Option* o_source = nullptr;
   CLI::Option* o_out = nullptr;
@@ -47,6 +52,9 @@ struct RunFlags {
   CLI::Option* o_rate = nullptr;
   CLI::Option* o_record = nullptr;
   CLI::Option* o_keep = nullptr;
+  CLI::Option* o_target = nullptr;
+  CLI::Option* o_igtl = nullptr;
+  CLI::Option* o_igtl_any = nullptr;
 };
 
 // Defaults, then the file, then the flags. Returns an error line.
@@ -72,6 +80,13 @@ std::optional<std::string> effective_config(const RunFlags& f, RunConfig& config
   if (f.o_rate->count()) config.rate_hz = f.rate_hz;
   if (f.o_record->count()) config.record_path = f.record;
   if (f.o_keep->count()) config.keep_meshes = f.keep_meshes;
+  if (f.o_target->count()) {
+    const OptionSpec* spec = find_option("pipeline", "target");
+    if (auto err = check_value(*spec, OptionValue(f.target))) return "--target " + *err;
+    spec->set(config, OptionValue(f.target));
+  }
+  if (f.o_igtl->count()) config.igtl_listen = f.igtl_listen;
+  if (f.o_igtl_any->count()) config.igtl_any_address = f.igtl_any_address;
   // The daemon needs the labels: seed tracking uses the deepest point inside the last result.
   config.pipeline.want_labels = true;
   // --print-config also serves to start a configuration file: no source or output needed.
@@ -84,6 +99,24 @@ void setup_logging(const std::string& level) {
   spdlog::set_default_logger(logger);
   spdlog::set_level(spdlog::level::from_str(level));
   spdlog::flush_on(spdlog::level::info);
+}
+
+// The OpenIGTLink server, added to the runner's sinks; null (after one line on stderr) if it
+// cannot listen.
+std::shared_ptr<IgtlServer> start_igtl(const RunConfig& config, LiveRunner& runner) {
+  auto igtl = std::make_shared<IgtlServer>(runner.stats());
+  try {
+    const HttpAddress address = *parse_http_address(config.igtl_listen);
+    const int port = igtl->start(address);
+    spdlog::info("OpenIGTLink server on {}:{} (sonomesh-mesh, -labels, -status)", address.host,
+                 port);
+    runner.event("igtl_listening", {{"host", address.host}, {"port", port}});
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "sonomeshd run: %s\n", e.what());
+    return nullptr;
+  }
+  runner.add_sink(igtl);
+  return igtl;
 }
 
 int run_daemon(const RunFlags& flags) {
@@ -123,6 +156,12 @@ int run_daemon(const RunFlags& flags) {
   } catch (const std::exception& e) {
     std::fprintf(stderr, "sonomeshd run: %s\n", e.what());
     return 1;
+  }
+
+  std::shared_ptr<IgtlServer> igtl;
+  if (!config.igtl_listen.empty()) {
+    igtl = start_igtl(config, *runner);
+    if (!igtl) return 1;
   }
 
   std::unique_ptr<HttpStatusServer> http;
@@ -219,6 +258,12 @@ void add_run_command(CLI::App& app, int& exit_code) {
                                     "Also record every good volume to this .usv file");
   flags->o_keep = cmd->add_option("--keep-meshes", flags->keep_meshes,
                                   "Keep only the newest N meshes and reports (0: all)");
+  flags->o_target = cmd->add_option("--target", flags->target,
+                                    "dark, bright or auto: the target's polarity (default dark)");
+  flags->o_igtl = cmd->add_option("--igtl-listen", flags->igtl_listen,
+                                  "OpenIGTLink server ADDR:PORT for 3D Slicer (loopback)");
+  flags->o_igtl_any = cmd->add_flag("--igtl-any-address", flags->igtl_any_address,
+                                    "Allow a non-loopback --igtl-listen address");
   cmd->callback([flags, &exit_code] {
     try {
       exit_code = run_daemon(*flags);

@@ -16,6 +16,8 @@ packages=(
   libfftw3-dev
   # daemon/
   libcli11-dev libtomlplusplus-dev nlohmann-json3-dev libspdlog-dev libfmt-dev libcpp-httplib-dev
+  # daemon/: the OpenIGTLink server for 3D Slicer
+  libopenigtlink-dev
   # tests and benchmarks (HIL tests run the real libusb/V4L2 paths under umockdev)
   libgtest-dev libgmock-dev libbenchmark-dev umockdev libumockdev-dev
 )
