@@ -20,6 +20,7 @@
 #include <vector>
 
 #include "daemon/internal/file_sink.h"
+#include "daemon/internal/igtl_messages.h"
 #include "daemon/internal/igtl_server.h"
 #include "igtl_test_client.h"
 #include "reconstruct/reconstruct.h"
@@ -78,12 +79,18 @@ int main(int argc, char** argv) {
   daemon::RunStats stats;
   daemon::IgtlServer server(stats);
   const int port = server.start({"127.0.0.1", 0});
-  testing::TestClient client(port);
+  sonomesh::testing::TestClient client(port);
 
-  std::vector<double> file_ms, mesh_ms, set_ms;
+  std::vector<double> file_ms, mesh_ms, set_ms, pack_mesh_ms, pack_labels_ms;
   for (int s = 1; s <= count; ++s) {
     v.sequence = static_cast<std::uint64_t>(s);
     nlohmann::json line = {{"sequence", s}, {"status", "processed"}};
+    const auto p0 = Clock::now();
+    const std::string packed_mesh = daemon::pack_igtl_mesh(v.mesh, daemon::IgtlTime::now());
+    const auto p1 = Clock::now();
+    const std::string packed_labels = daemon::pack_igtl_labels(*v.labels, daemon::IgtlTime::now());
+    pack_mesh_ms.push_back(ms(p1 - p0));
+    pack_labels_ms.push_back(ms(Clock::now() - p1));
     const auto t0 = Clock::now();
     files.write(v, line);
     file_ms.push_back(ms(Clock::now() - t0));
@@ -104,6 +111,10 @@ int main(int argc, char** argv) {
   std::printf("%-34s %8s %8s\n", "per volume (ms)", "p50", "p95");
   std::printf("%-34s %8.2f %8.2f\n", "files sink write (fsync'd)", quantile(file_ms, 0.5),
               quantile(file_ms, 0.95));
+  std::printf("%-34s %8.2f %8.2f\n", "of which: pack POLYDATA", quantile(pack_mesh_ms, 0.5),
+              quantile(pack_mesh_ms, 0.95));
+  std::printf("%-34s %8.2f %8.2f\n", "of which: pack IMAGE", quantile(pack_labels_ms, 0.5),
+              quantile(pack_labels_ms, 0.95));
   std::printf("%-34s %8.2f %8.2f\n", "igtl publish -> POLYDATA received", quantile(mesh_ms, 0.5),
               quantile(mesh_ms, 0.95));
   std::printf("%-34s %8.2f %8.2f\n", "igtl publish -> whole set received", quantile(set_ms, 0.5),

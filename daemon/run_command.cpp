@@ -1,6 +1,8 @@
 // `sonomeshd run`: the daemon. Configuration, signals and HTTP here; the threads in LiveRunner.
 #include <pthread.h>
 #include <signal.h>
+#include <spdlog/sinks/stdout_color_sinks.h>
+#include <spdlog/spdlog.h>
 
 #include <atomic>
 #include <chrono>
@@ -9,9 +11,6 @@
 #include <memory>
 #include <optional>
 #include <thread>
-
-#include <spdlog/sinks/stdout_color_sinks.h>
-#include <spdlog/spdlog.h>
 
 #include "daemon/commands.h"
 #include "daemon/internal/http_status.h"
@@ -101,6 +100,41 @@ void setup_logging(const std::string& level) {
   spdlog::flush_on(spdlog::level::info);
 }
 
+// The signal thread: SIGINT/SIGTERM stop the runner, SIGHUP reloads the configuration file.
+void take_signals(const sigset_t& signals, const RunFlags& flags, LiveRunner& runner,
+                  const std::atomic<bool>& done) {
+  // A stop signal that follows the previous one within this window is the same request:
+  // `timeout` and a terminal both deliver SIGINT to the child and again to its process group,
+  // and that must finish the volume in hand, not abort it.
+  constexpr auto kSameRequestWindow = std::chrono::milliseconds(500);
+  std::optional<std::chrono::steady_clock::time_point> last_stop_signal;
+  while (!done) {
+    timespec timeout{0, 200 * 1000 * 1000};
+    const int sig = sigtimedwait(&signals, nullptr, &timeout);
+    if (sig == SIGINT || sig == SIGTERM) {
+      const auto now = std::chrono::steady_clock::now();
+      if (last_stop_signal && now - *last_stop_signal < kSameRequestWindow) continue;
+      last_stop_signal = now;
+      spdlog::info("{}: stopping after the volume in hand (again to abort it)",
+                   sig == SIGINT ? "SIGINT" : "SIGTERM");
+      runner.event("signal", {{"signal", sig == SIGINT ? "SIGINT" : "SIGTERM"}});
+      runner.request_stop();
+    } else if (sig == SIGHUP) {
+      if (flags.config_file.empty()) {
+        spdlog::info("SIGHUP: no --config file to reload");
+        continue;
+      }
+      RunConfig next;
+      if (auto err = effective_config(flags, next)) {
+        spdlog::error("SIGHUP: keeping the running configuration: {}", *err);
+        runner.event("config_reload_failed", {{"error", *err}});
+      } else {
+        runner.reload(next);
+      }
+    }
+  }
+}
+
 // The OpenIGTLink server, added to the runner's sinks; null (after one line on stderr) if it
 // cannot listen.
 std::shared_ptr<IgtlServer> start_igtl(const RunConfig& config, LiveRunner& runner) {
@@ -150,9 +184,9 @@ int run_daemon(const RunFlags& flags) {
 
   std::unique_ptr<LiveRunner> runner;
   try {
-    runner = std::make_unique<LiveRunner>(config, std::move(opened.source),
-                                          std::move(opened.factory), opened.live,
-                                          opened.phantom_seed_mm);
+    runner =
+        std::make_unique<LiveRunner>(config, std::move(opened.source), std::move(opened.factory),
+                                     opened.live, opened.phantom_seed_mm);
   } catch (const std::exception& e) {
     std::fprintf(stderr, "sonomeshd run: %s\n", e.what());
     return 1;
@@ -185,40 +219,10 @@ int run_daemon(const RunFlags& flags) {
   }
 
   spdlog::info("sonomeshd run: source {} ({}), out {}", config.source,
-               opened.live ? "live: newest volume wins" : "replay: every volume", config.out.string());
+               opened.live ? "live: newest volume wins" : "replay: every volume",
+               config.out.string());
   std::atomic<bool> done{false};
-  std::thread signal_thread([&] {
-    // A stop signal that follows the previous one within this window is the same request:
-    // `timeout` and a terminal both deliver SIGINT to the child and again to its process group,
-    // and that must finish the volume in hand, not abort it.
-    constexpr auto kSameRequestWindow = std::chrono::milliseconds(500);
-    std::optional<std::chrono::steady_clock::time_point> last_stop_signal;
-    while (!done) {
-      timespec timeout{0, 200 * 1000 * 1000};
-      const int sig = sigtimedwait(&signals, nullptr, &timeout);
-      if (sig == SIGINT || sig == SIGTERM) {
-        const auto now = std::chrono::steady_clock::now();
-        if (last_stop_signal && now - *last_stop_signal < kSameRequestWindow) continue;
-        last_stop_signal = now;
-        spdlog::info("{}: stopping after the volume in hand (again to abort it)",
-                     sig == SIGINT ? "SIGINT" : "SIGTERM");
-        runner->event("signal", {{"signal", sig == SIGINT ? "SIGINT" : "SIGTERM"}});
-        runner->request_stop();
-      } else if (sig == SIGHUP) {
-        if (flags.config_file.empty()) {
-          spdlog::info("SIGHUP: no --config file to reload");
-          continue;
-        }
-        RunConfig next;
-        if (auto err = effective_config(flags, next)) {
-          spdlog::error("SIGHUP: keeping the running configuration: {}", *err);
-          runner->event("config_reload_failed", {{"error", *err}});
-        } else {
-          runner->reload(next);
-        }
-      }
-    }
-  });
+  std::thread signal_thread([&] { take_signals(signals, flags, *runner, done); });
   const int rc = runner->run();
   done = true;
   signal_thread.join();
@@ -236,14 +240,15 @@ void add_run_command(CLI::App& app, int& exit_code) {
   flags->o_source = cmd->add_option("--source", flags->source,
                                     "sim:PHANTOM[?rate=HZ&size=N], replay:PATH, unix:PATH, "
                                     "tcp:HOST:PORT, usb:VID:PID[/SERIAL], v4l2:/dev/videoN");
-  flags->o_out = cmd->add_option("--out", flags->out, "Output directory (journal, meshes, reports)");
+  flags->o_out =
+      cmd->add_option("--out", flags->out, "Output directory (journal, meshes, reports)");
   cmd->add_option("--config", flags->config_file, "TOML configuration file (SIGHUP reloads it)")
       ->check(CLI::ExistingFile);
   flags->o_seed = cmd->add_option("--seed-mm", flags->seed_text,
                                   "Seed X,Y,Z in mm (else the phantom's / the volume centre)");
-  flags->o_http = cmd->add_option("--http", flags->http,
-                                  std::string("HTTP status address HOST:PORT or 'off' (default ") +
-                                      kDefaultHttpAddress + ")");
+  flags->o_http = cmd->add_option(
+      "--http", flags->http,
+      std::string("HTTP status address HOST:PORT or 'off' (default ") + kDefaultHttpAddress + ")");
   flags->o_allow_remote = cmd->add_flag("--allow-remote-http", flags->allow_remote_http,
                                         "Allow a non-loopback HTTP address");
   cmd->add_flag("--print-config", flags->print_config,
@@ -252,10 +257,10 @@ void add_run_command(CLI::App& app, int& exit_code) {
                                    "Volumes waiting for the worker (default 2)");
   flags->o_log = cmd->add_option("--log-level", flags->log_level,
                                  "trace, debug, info, warn, error (default info)");
-  flags->o_rate = cmd->add_option("--rate", flags->rate_hz,
-                                  "Replay pacing in volumes/s (0: recorded timing)");
-  flags->o_record = cmd->add_option("--record", flags->record,
-                                    "Also record every good volume to this .usv file");
+  flags->o_rate =
+      cmd->add_option("--rate", flags->rate_hz, "Replay pacing in volumes/s (0: recorded timing)");
+  flags->o_record =
+      cmd->add_option("--record", flags->record, "Also record every good volume to this .usv file");
   flags->o_keep = cmd->add_option("--keep-meshes", flags->keep_meshes,
                                   "Keep only the newest N meshes and reports (0: all)");
   flags->o_target = cmd->add_option("--target", flags->target,

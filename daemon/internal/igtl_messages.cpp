@@ -3,10 +3,14 @@
 #include <igtlImageMessage.h>
 #include <igtlPolyDataMessage.h>
 #include <igtlStringMessage.h>
+#include <igtl_header.h>
+#include <igtl_polydata.h>
+#include <igtl_util.h>
 
 #include <chrono>
 #include <cstring>
 #include <stdexcept>
+#include <vector>
 
 namespace sonomesh::daemon {
 
@@ -32,23 +36,37 @@ IgtlTime IgtlTime::now() {
 }
 
 std::string pack_igtl_mesh(const segment::Mesh& mesh, IgtlTime time) {
-  auto points = igtl::PolyDataPointArray::New();
-  points->SetNumberOfPoints(static_cast<int>(mesh.vertices.size()));
-  for (std::size_t i = 0; i < mesh.vertices.size(); ++i) {
-    const auto& p = mesh.vertices[i];
-    points->SetPoint(static_cast<unsigned>(i), -p.x(), -p.y(), p.z());  // LPS -> RAS
+  // The library's C layer packs the body from flat arrays: its C++ PolyDataCellArray keeps one
+  // std::list per cell, which cost 194 ms for a 246k-triangle 128³ surface (igtl_bench).
+  std::vector<igtl_float32> points;
+  points.reserve(3 * mesh.vertices.size());
+  for (const auto& p : mesh.vertices) {
+    points.insert(points.end(), {-p.x(), -p.y(), p.z()});  // LPS -> RAS
   }
-  auto polygons = igtl::PolyDataCellArray::New();
-  for (const auto& t : mesh.triangles) {
-    igtlUint32 cell[3] = {static_cast<igtlUint32>(t[0]), static_cast<igtlUint32>(t[1]),
-                          static_cast<igtlUint32>(t[2])};
-    polygons->AddCell(3, cell);
-  }
-  auto message = igtl::PolyDataMessage::New();
-  message->SetDeviceName(kIgtlMeshDevice);
-  message->SetPoints(points);
-  message->SetPolygons(polygons);
-  return packed(message, time);
+  std::vector<igtl_uint32> polygons;
+  polygons.reserve(4 * mesh.triangles.size());
+  for (const auto& t : mesh.triangles) polygons.insert(polygons.end(), {3, t[0], t[1], t[2]});
+  igtl_polydata_info info;
+  igtl_polydata_init_info(&info);
+  info.header.npoints = static_cast<igtl_uint32>(mesh.vertices.size());
+  info.header.npolygons = static_cast<igtl_uint32>(mesh.triangles.size());
+  info.header.size_polygons = static_cast<igtl_uint32>(polygons.size() * sizeof(igtl_uint32));
+  info.points = points.data();
+  info.polygons = polygons.data();
+  const igtl_uint64 body_bytes = igtl_polydata_get_size(&info, IGTL_TYPE_PREFIX_NONE);
+  std::string out(IGTL_HEADER_SIZE + body_bytes, '\0');
+  auto* body = reinterpret_cast<unsigned char*>(out.data() + IGTL_HEADER_SIZE);
+  igtl_polydata_pack(&info, body, IGTL_TYPE_PREFIX_NONE);
+  igtl_header header{};
+  header.version = 1;
+  std::strncpy(header.name, "POLYDATA", IGTL_HEADER_TYPE_SIZE);
+  std::strncpy(header.device_name, kIgtlMeshDevice, IGTL_HEADER_NAME_SIZE);
+  header.timestamp = (static_cast<igtl_uint64>(time.seconds) << 32) | time.fraction;
+  header.body_size = body_bytes;
+  header.crc = crc64(body, body_bytes, 0ULL);
+  igtl_header_convert_byte_order(&header);
+  std::memcpy(out.data(), &header, IGTL_HEADER_SIZE);
+  return out;
 }
 
 std::string pack_igtl_labels(const volume::Volume& labels, IgtlTime time) {

@@ -106,10 +106,13 @@ int IgtlServer::start(const HttpAddress& address) {
   const int port = bound_port(listen_fd_);
   update_stats();
   thread_ = std::thread([this] { serve(); });
+  packer_ = std::thread([this] { pack_loop(); });
   return port;
 }
 
 void IgtlServer::stop() {
+  pack_queue_.close();
+  if (packer_.joinable()) packer_.join();
   stopping_ = true;
   if (wake_fd_ >= 0) {
     const std::uint64_t one = 1;
@@ -126,7 +129,22 @@ void IgtlServer::stop() {
 }
 
 void IgtlServer::on_line(const nlohmann::json& line, const ProcessedVolume* volume) {
-  if (volume) publish(*volume, line.dump());
+  if (!volume || listen_fd_ < 0) return;
+  const std::size_t dropped = pack_queue_.push(PackJob{*volume, line.dump()}).size();
+  if (dropped > 0) {
+    std::lock_guard lock(mutex_);
+    sets_dropped_ += dropped;
+  }
+}
+
+void IgtlServer::pack_loop() {
+  while (auto job = pack_queue_.pop()) {
+    try {
+      publish(job->volume, job->status_line);
+    } catch (const std::exception& e) {
+      spdlog::error("OpenIGTLink: {}", e.what());
+    }
+  }
 }
 
 void IgtlServer::publish(const ProcessedVolume& volume, const std::string& status_line) {

@@ -17,6 +17,7 @@
 #include <thread>
 #include <vector>
 
+#include "daemon/internal/bounded_queue.h"
 #include "daemon/internal/http_status.h"
 #include "daemon/internal/output_sink.h"
 #include "daemon/internal/run_stats.h"
@@ -41,11 +42,18 @@ class IgtlServer : public OutputSink {
   const char* name() const override { return "igtl"; }
   void on_line(const nlohmann::json& line, const ProcessedVolume* volume) override;
 
-  /// Packs and sends one result set (what on_line does for a `processed` line).
+  /// Packs and sends one result set on the calling thread. on_line() instead hands a copy to the
+  /// server's packing thread (packing a 128³ set costs ~90 ms: the writer must not wait for it);
+  /// a set still waiting to be packed when a newer one comes is dropped (counted).
   void publish(const ProcessedVolume& volume, const std::string& status_line);
 
  private:
   struct Client;
+  struct PackJob {
+    ProcessedVolume volume;
+    std::string status_line;
+  };
+  void pack_loop();
   void serve();
   void accept_clients();
   bool read_from(Client& client);
@@ -56,6 +64,8 @@ class IgtlServer : public OutputSink {
   int listen_fd_ = -1;
   int wake_fd_ = -1;  // eventfd: a new set is queued, or stop
   std::thread thread_;
+  std::thread packer_;
+  BoundedQueue<PackJob> pack_queue_{1, QueueMode::KeepNewest};
   std::atomic<bool> stopping_{false};
 
   std::mutex mutex_;  // clients_ and latest_: the writer thread queues, the server thread sends

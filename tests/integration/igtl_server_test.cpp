@@ -106,7 +106,7 @@ TEST(IgtlServer, LateJoinerGetsTheLatestAndClientMessagesNeverBreakTheLink) {
   const int port = server.start({"127.0.0.1", 0});
   for (std::uint64_t s = 1; s <= 3; ++s) {
     const ProcessedVolume v = oblique_ball(s);
-    server.on_line(status_line(s), &v);
+    server.publish(v, status_line(s).dump());  // packed before the client connects
   }
   TestClient late(port);
   ASSERT_TRUE(late.connected());
