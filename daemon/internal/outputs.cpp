@@ -73,7 +73,7 @@ std::optional<std::string> write_mesh_ply(const segment::Mesh& mesh, const fs::p
 
 std::optional<std::string> write_mesh_ply(const segment::Mesh& grid_mesh,
                                           const volume::Volume& frame, const fs::path& path) {
-  return write_mesh_ply(mesh_to_world(grid_mesh, frame), path);
+  return internal::write_mesh_ply(mesh_to_world(grid_mesh, frame), path);
 }
 
 std::optional<std::string> write_mesh_file(const segment::Mesh& grid_mesh,
@@ -100,7 +100,7 @@ std::optional<std::string> write_balloon_ply(const segment::Mesh& mesh,
 std::optional<std::string> write_balloon_ply(const segment::Mesh& grid_mesh,
                                              const std::vector<segment::StopReason>& stop,
                                              const volume::Volume& frame, const fs::path& path) {
-  return write_balloon_ply(mesh_to_world(grid_mesh, frame), stop, path);
+  return internal::write_balloon_ply(mesh_to_world(grid_mesh, frame), stop, path);
 }
 
 fs::path label_description_path(const fs::path& labels_path) {
