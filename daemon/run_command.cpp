@@ -1,6 +1,8 @@
 // `sonomeshd run`: the daemon. Configuration, signals and HTTP here; the threads in LiveRunner.
 #include <pthread.h>
 #include <signal.h>
+#include <spdlog/sinks/stdout_color_sinks.h>
+#include <spdlog/spdlog.h>
 
 #include <atomic>
 #include <chrono>
@@ -10,14 +12,13 @@
 #include <optional>
 #include <thread>
 
-#include <spdlog/sinks/stdout_color_sinks.h>
-#include <spdlog/spdlog.h>
-
 #include "daemon/commands.h"
 #include "daemon/internal/http_status.h"
+#include "daemon/internal/igtl_server.h"
 #include "daemon/internal/live_extras.h"
 #include "daemon/internal/live_runner.h"
 #include "daemon/internal/run_config.h"
+#include "daemon/internal/run_options.h"
 #include "daemon/internal/run_sources.h"
 
 namespace sonomesh::daemon {
@@ -37,6 +38,9 @@ struct RunFlags {
   double rate_hz = 0;
   std::string record;
   std::uint64_t keep_meshes = 0;
+  std::string target;
+  std::string igtl_listen;
+  bool igtl_any_address = false;
   // Which were given (flags override the file only when given).
   CLI::Option* o_source = nullptr;
   CLI::Option* o_out = nullptr;
@@ -48,6 +52,9 @@ struct RunFlags {
   CLI::Option* o_rate = nullptr;
   CLI::Option* o_record = nullptr;
   CLI::Option* o_keep = nullptr;
+  CLI::Option* o_target = nullptr;
+  CLI::Option* o_igtl = nullptr;
+  CLI::Option* o_igtl_any = nullptr;
 };
 
 // Defaults, then the file, then the flags. Returns an error line.
@@ -73,6 +80,13 @@ std::optional<std::string> effective_config(const RunFlags& f, RunConfig& config
   if (f.o_rate->count()) config.rate_hz = f.rate_hz;
   if (f.o_record->count()) config.record_path = f.record;
   if (f.o_keep->count()) config.keep_meshes = f.keep_meshes;
+  if (f.o_target->count()) {
+    const OptionSpec* spec = find_option("pipeline", "target");
+    if (auto err = check_value(*spec, OptionValue(f.target))) return "--target " + *err;
+    spec->set(config, OptionValue(f.target));
+  }
+  if (f.o_igtl->count()) config.igtl_listen = f.igtl_listen;
+  if (f.o_igtl_any->count()) config.igtl_any_address = f.igtl_any_address;
   // The daemon needs the labels: seed tracking uses the deepest point inside the last result.
   config.pipeline.want_labels = true;
   // --print-config also serves to start a configuration file: no source or output needed.
@@ -85,6 +99,60 @@ void setup_logging(const std::string& level) {
   spdlog::set_default_logger(logger);
   spdlog::set_level(spdlog::level::from_str(level));
   spdlog::flush_on(spdlog::level::info);
+}
+
+// The signal thread: SIGINT/SIGTERM stop the runner, SIGHUP reloads the configuration file.
+void take_signals(const sigset_t& signals, const RunFlags& flags, LiveRunner& runner,
+                  LiveExtras& extras, const std::atomic<bool>& done) {
+  // A stop signal that follows the previous one within this window is the same request:
+  // `timeout` and a terminal both deliver SIGINT to the child and again to its process group,
+  // and that must finish the volume in hand, not abort it.
+  constexpr auto kSameRequestWindow = std::chrono::milliseconds(500);
+  std::optional<std::chrono::steady_clock::time_point> last_stop_signal;
+  while (!done) {
+    timespec timeout{0, 200 * 1000 * 1000};
+    const int sig = sigtimedwait(&signals, nullptr, &timeout);
+    if (sig == SIGINT || sig == SIGTERM) {
+      const auto now = std::chrono::steady_clock::now();
+      if (last_stop_signal && now - *last_stop_signal < kSameRequestWindow) continue;
+      last_stop_signal = now;
+      spdlog::info("{}: stopping after the volume in hand (again to abort it)",
+                   sig == SIGINT ? "SIGINT" : "SIGTERM");
+      runner.event("signal", {{"signal", sig == SIGINT ? "SIGINT" : "SIGTERM"}});
+      extras.stop_requested();  // web: STOPPING=1
+      runner.request_stop();
+    } else if (sig == SIGHUP) {
+      if (flags.config_file.empty()) {
+        spdlog::info("SIGHUP: no --config file to reload");
+        continue;
+      }
+      RunConfig next;
+      if (auto err = effective_config(flags, next)) {
+        spdlog::error("SIGHUP: keeping the running configuration: {}", *err);
+        runner.event("config_reload_failed", {{"error", *err}});
+      } else {
+        runner.reload(next);
+      }
+    }
+  }
+}
+
+// The OpenIGTLink server, added to the runner's sinks; null (after one line on stderr) if it
+// cannot listen.
+std::shared_ptr<IgtlServer> start_igtl(const RunConfig& config, LiveRunner& runner) {
+  auto igtl = std::make_shared<IgtlServer>(runner.stats());
+  try {
+    const HttpAddress address = *parse_http_address(config.igtl_listen);
+    const int port = igtl->start(address);
+    spdlog::info("OpenIGTLink server on {}:{} (sonomesh-mesh, -labels, -status)", address.host,
+                 port);
+    runner.event("igtl_listening", {{"host", address.host}, {"port", port}});
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "sonomeshd run: %s\n", e.what());
+    return nullptr;
+  }
+  runner.add_sink(igtl);
+  return igtl;
 }
 
 int run_daemon(const RunFlags& flags) {
@@ -117,17 +185,24 @@ int run_daemon(const RunFlags& flags) {
 
   std::unique_ptr<LiveRunner> runner;
   try {
-    runner = std::make_unique<LiveRunner>(config, std::move(opened.source),
-                                          std::move(opened.factory), opened.live,
-                                          opened.phantom_seed_mm);
+    runner =
+        std::make_unique<LiveRunner>(config, std::move(opened.source), std::move(opened.factory),
+                                     opened.live, opened.phantom_seed_mm);
   } catch (const std::exception& e) {
     std::fprintf(stderr, "sonomeshd run: %s\n", e.what());
     return 1;
   }
 
+  std::shared_ptr<IgtlServer> igtl;
+  if (!config.igtl_listen.empty()) {
+    igtl = start_igtl(config, *runner);
+    if (!igtl) return 1;
+  }
+
   // web (issue 18): the live page's event stream and slices, systemd's notify protocol.
   LiveExtras extras(config.out, runner->stats());
-  runner->set_hooks(extras.hooks());
+  runner->set_worker_turn_hook(extras.worker_turn_hook());
+  runner->add_sink(extras.slice_sink());
   extras.start();
 
   std::unique_ptr<HttpStatusServer> http;
@@ -154,41 +229,10 @@ int run_daemon(const RunFlags& flags) {
 
   extras.serving(true);  // web: READY=1 once the source is open too
   spdlog::info("sonomeshd run: source {} ({}), out {}", config.source,
-               opened.live ? "live: newest volume wins" : "replay: every volume", config.out.string());
+               opened.live ? "live: newest volume wins" : "replay: every volume",
+               config.out.string());
   std::atomic<bool> done{false};
-  std::thread signal_thread([&] {
-    // A stop signal that follows the previous one within this window is the same request:
-    // `timeout` and a terminal both deliver SIGINT to the child and again to its process group,
-    // and that must finish the volume in hand, not abort it.
-    constexpr auto kSameRequestWindow = std::chrono::milliseconds(500);
-    std::optional<std::chrono::steady_clock::time_point> last_stop_signal;
-    while (!done) {
-      timespec timeout{0, 200 * 1000 * 1000};
-      const int sig = sigtimedwait(&signals, nullptr, &timeout);
-      if (sig == SIGINT || sig == SIGTERM) {
-        const auto now = std::chrono::steady_clock::now();
-        if (last_stop_signal && now - *last_stop_signal < kSameRequestWindow) continue;
-        last_stop_signal = now;
-        spdlog::info("{}: stopping after the volume in hand (again to abort it)",
-                     sig == SIGINT ? "SIGINT" : "SIGTERM");
-        runner->event("signal", {{"signal", sig == SIGINT ? "SIGINT" : "SIGTERM"}});
-        extras.stop_requested();  // web: STOPPING=1
-        runner->request_stop();
-      } else if (sig == SIGHUP) {
-        if (flags.config_file.empty()) {
-          spdlog::info("SIGHUP: no --config file to reload");
-          continue;
-        }
-        RunConfig next;
-        if (auto err = effective_config(flags, next)) {
-          spdlog::error("SIGHUP: keeping the running configuration: {}", *err);
-          runner->event("config_reload_failed", {{"error", *err}});
-        } else {
-          runner->reload(next);
-        }
-      }
-    }
-  });
+  std::thread signal_thread([&] { take_signals(signals, flags, *runner, extras, done); });
   const int rc = runner->run();
   done = true;
   signal_thread.join();
@@ -207,14 +251,15 @@ void add_run_command(CLI::App& app, int& exit_code) {
   flags->o_source = cmd->add_option("--source", flags->source,
                                     "sim:PHANTOM[?rate=HZ&size=N], replay:PATH, unix:PATH, "
                                     "tcp:HOST:PORT, usb:VID:PID[/SERIAL], v4l2:/dev/videoN");
-  flags->o_out = cmd->add_option("--out", flags->out, "Output directory (journal, meshes, reports)");
+  flags->o_out =
+      cmd->add_option("--out", flags->out, "Output directory (journal, meshes, reports)");
   cmd->add_option("--config", flags->config_file, "TOML configuration file (SIGHUP reloads it)")
       ->check(CLI::ExistingFile);
   flags->o_seed = cmd->add_option("--seed-mm", flags->seed_text,
                                   "Seed X,Y,Z in mm (else the phantom's / the volume centre)");
-  flags->o_http = cmd->add_option("--http", flags->http,
-                                  std::string("HTTP status address HOST:PORT or 'off' (default ") +
-                                      kDefaultHttpAddress + ")");
+  flags->o_http = cmd->add_option(
+      "--http", flags->http,
+      std::string("HTTP status address HOST:PORT or 'off' (default ") + kDefaultHttpAddress + ")");
   flags->o_allow_remote = cmd->add_flag("--allow-remote-http", flags->allow_remote_http,
                                         "Allow a non-loopback HTTP address");
   cmd->add_flag("--print-config", flags->print_config,
@@ -223,12 +268,18 @@ void add_run_command(CLI::App& app, int& exit_code) {
                                    "Volumes waiting for the worker (default 2)");
   flags->o_log = cmd->add_option("--log-level", flags->log_level,
                                  "trace, debug, info, warn, error (default info)");
-  flags->o_rate = cmd->add_option("--rate", flags->rate_hz,
-                                  "Replay pacing in volumes/s (0: recorded timing)");
-  flags->o_record = cmd->add_option("--record", flags->record,
-                                    "Also record every good volume to this .usv file");
+  flags->o_rate =
+      cmd->add_option("--rate", flags->rate_hz, "Replay pacing in volumes/s (0: recorded timing)");
+  flags->o_record =
+      cmd->add_option("--record", flags->record, "Also record every good volume to this .usv file");
   flags->o_keep = cmd->add_option("--keep-meshes", flags->keep_meshes,
                                   "Keep only the newest N meshes and reports (0: all)");
+  flags->o_target = cmd->add_option("--target", flags->target,
+                                    "dark, bright or auto: the target's polarity (default dark)");
+  flags->o_igtl = cmd->add_option("--igtl-listen", flags->igtl_listen,
+                                  "OpenIGTLink server ADDR:PORT for 3D Slicer (loopback)");
+  flags->o_igtl_any = cmd->add_flag("--igtl-any-address", flags->igtl_any_address,
+                                    "Allow a non-loopback --igtl-listen address");
   cmd->callback([flags, &exit_code] {
     try {
       exit_code = run_daemon(*flags);

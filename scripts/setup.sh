@@ -19,7 +19,8 @@ packages=(
   libopenigtlink-dev
   # daemon/
   libcli11-dev libtomlplusplus-dev nlohmann-json3-dev libspdlog-dev libfmt-dev libcpp-httplib-dev
-  # daemon/: the live page (slice PNGs, three.js served locally), systemd notify
+  # daemon/: the OpenIGTLink server uses libopenigtlink-dev (above); the live page (slice
+  # PNGs, three.js served locally), systemd notify
   libopencv-imgcodecs-dev libjs-three libsystemd-dev
   # tests and benchmarks (HIL tests run the real libusb/V4L2 paths under umockdev)
   libgtest-dev libgmock-dev libbenchmark-dev umockdev libumockdev-dev

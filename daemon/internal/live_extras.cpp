@@ -39,13 +39,38 @@ WebContext LiveExtras::web() {
   return WebContext{&hub_, &slices_, locate_web_dir(), locate_three_dir()};
 }
 
-LiveHooks LiveExtras::hooks() {
-  LiveHooks h;
-  h.worker_turn = [this] { notifier_.watchdog(); };
-  h.result = [this](const volume::Volume& input, const segment::Mesh& mesh_mm,
-                    const volume::Vec3f& seed_mm,
-                    std::uint64_t sequence) { slices_.update(input, mesh_mm, seed_mm, sequence); };
-  return h;
+std::function<void()> LiveExtras::worker_turn_hook() {
+  return [this] { notifier_.watchdog(); };
 }
+
+namespace {
+
+// The slices are cut in the grid frame the pipeline ran in; the sink gets the world-frame mesh.
+class SliceSink : public OutputSink {
+ public:
+  explicit SliceSink(SliceRenderer& slices) : slices_(slices) {}
+  const char* name() const override { return "slices"; }
+  void write(const ProcessedVolume& volume, nlohmann::json&) override {
+    if (!volume.input) return;
+    segment::Mesh grid_mesh;
+    grid_mesh.triangles = volume.mesh.triangles;  // contours only: the winding does not matter
+    grid_mesh.vertices.reserve(volume.mesh.vertices.size());
+    for (const auto& p : volume.mesh.vertices)
+      grid_mesh.vertices.push_back(volume.input->world_to_grid_mm(p));
+    try {
+      slices_.update(*volume.input, grid_mesh, volume.seed_grid_mm, volume.sequence);
+    } catch (const std::exception& e) {
+      // The page's slices are a view, not an output: their failure does not fail the volume.
+      spdlog::warn("sequence {}: slices: {}", volume.sequence, e.what());
+    }
+  }
+
+ private:
+  SliceRenderer& slices_;
+};
+
+}  // namespace
+
+std::shared_ptr<OutputSink> LiveExtras::slice_sink() { return std::make_shared<SliceSink>(slices_); }
 
 }  // namespace sonomesh::daemon

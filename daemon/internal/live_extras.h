@@ -1,15 +1,16 @@
 #pragma once
 /// @file
 /// @brief The live page's and systemd's parts of `sonomeshd run`, composed in one place: the
-/// event hub (/events), the slice renderer (/slices), the notifier (READY, STATUS, WATCHDOG,
-/// STOPPING) and the hooks the worker calls.
+/// event hub (/events), the slice renderer (/slices, fed by an output sink), the notifier (READY,
+/// STATUS, WATCHDOG, STOPPING) and the watchdog hook the worker calls on every turn.
 
 #include <filesystem>
+#include <functional>
 #include <memory>
 
 #include "daemon/internal/event_hub.h"
-#include "daemon/internal/live_hooks.h"
 #include "daemon/internal/notifier.h"
+#include "daemon/internal/output_sink.h"
 #include "daemon/internal/run_stats.h"
 #include "daemon/internal/slice_renderer.h"
 #include "daemon/internal/web_routes.h"
@@ -33,7 +34,11 @@ class LiveExtras {
   void stop();
 
   WebContext web();
-  LiveHooks hooks();
+  /// For LiveRunner::set_worker_turn_hook: a systemd watchdog ping (rate-limited by Notifier).
+  std::function<void()> worker_turn_hook();
+  /// For LiveRunner::add_sink: hands every processed volume to the slice renderer before its
+  /// journal line goes out (so /slices has it when /events says so).
+  std::shared_ptr<OutputSink> slice_sink();
   Notifier& notifier() { return notifier_; }
 
  private:

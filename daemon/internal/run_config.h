@@ -8,6 +8,7 @@
 #include <array>
 #include <cstdint>
 #include <filesystem>
+#include <mutex>
 #include <optional>
 #include <string>
 
@@ -41,6 +42,9 @@ struct RunConfig {
   // [limits]
   std::uint64_t max_lost_lines = 100000;     // a bigger sequence jump is an event, not N lines
   std::uint64_t keep_meshes = 0;             // keep the newest N meshes/reports (0 = all)
+  // [outputs]
+  std::string igtl_listen;                   // OpenIGTLink server ADDR:PORT ("" = none)
+  bool igtl_any_address = false;             // a non-loopback igtl_listen needs this
   // [pipeline]
   PipelineConfig pipeline;
 };
@@ -58,6 +62,26 @@ std::string to_toml(const RunConfig& config);
 /// Checks values (ranges, and with `require_io` the source and output directory). Returns the
 /// first problem.
 std::optional<std::string> validate(const RunConfig& config, bool require_io = true);
+
+/// The running configuration, shared by the daemon's threads: each takes a snapshot per volume,
+/// a reload (SIGHUP) or POST /seed replaces it.
+class SharedConfig {
+ public:
+  explicit SharedConfig(RunConfig config) : config_(std::move(config)) {}
+  RunConfig snapshot() const {
+    std::lock_guard lock(mutex_);
+    return config_;
+  }
+  template <typename Change>
+  void update(Change&& change) {
+    std::lock_guard lock(mutex_);
+    change(config_);
+  }
+
+ private:
+  mutable std::mutex mutex_;
+  RunConfig config_;
+};
 
 /// The acquire::SourceOptions part.
 acquire::SourceOptions source_options(const RunConfig& config);

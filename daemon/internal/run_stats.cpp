@@ -120,6 +120,24 @@ void RunStats::set_last_processed(std::uint64_t sequence, int genus) {
   last_genus_ = genus;
 }
 
+void RunStats::count_quality(bool ok, const std::vector<std::string>& reasons) {
+  std::lock_guard lock(mutex_);
+  ++(ok ? quality_ok_ : quality_suspect_);
+  if (!ok) {
+    for (const std::string& reason : reasons) ++suspect_reasons_[reason];
+  }
+  last_quality_ok_ = ok;
+  last_quality_reasons_ = reasons;
+}
+
+void RunStats::set_igtl(std::size_t clients, std::uint64_t sent, std::uint64_t dropped) {
+  std::lock_guard lock(mutex_);
+  igtl_enabled_ = true;
+  igtl_clients_ = clients;
+  igtl_sent_ = sent;
+  igtl_dropped_ = dropped;
+}
+
 void RunStats::count_outage() {
   std::lock_guard lock(mutex_);
   ++outages_;
@@ -174,9 +192,19 @@ nlohmann::json RunStats::status_json() const {
   j["queue"] = {{"depth", queue_depth_}, {"capacity", queue_capacity_}};
   j["seed"] = {{"mm", seed_mm_ ? nlohmann::json(*seed_mm_) : nlohmann::json(nullptr)},
                {"origin", seed_origin_}};
-  j["last_processed"] =
-      last_sequence_ ? nlohmann::json{{"sequence", *last_sequence_}, {"genus", last_genus_}}
-                     : nlohmann::json(nullptr);
+  j["last_processed"] = nlohmann::json(nullptr);
+  if (last_sequence_) {
+    j["last_processed"] = {{"sequence", *last_sequence_}, {"genus", last_genus_}};
+    if (last_quality_ok_) {
+      j["last_processed"]["quality"] = *last_quality_ok_ ? "ok" : "suspect";
+      j["last_processed"]["quality_reasons"] = last_quality_reasons_;
+    }
+  }
+  j["quality"] = {{"ok", quality_ok_}, {"suspect", quality_suspect_},
+                  {"suspect_reasons", suspect_reasons_}};
+  if (igtl_enabled_) {
+    j["igtl"] = {{"clients", igtl_clients_}, {"sent", igtl_sent_}, {"dropped", igtl_dropped_}};
+  }
   j["uptime_s"] =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - started_).count();
   return j;
@@ -199,6 +227,16 @@ std::string RunStats::prometheus_text() const {
     const auto it = counters_.find(s);
     out << "sonomesh_volumes_total{status=\"" << to_string(s) << "\"} "
         << (it == counters_.end() ? 0 : it->second) << "\n";
+  }
+
+  out << "# HELP sonomesh_results_total Processed volumes by quality verdict.\n"
+      << "# TYPE sonomesh_results_total counter\n"
+      << "sonomesh_results_total{quality=\"ok\"} " << quality_ok_ << "\n"
+      << "sonomesh_results_total{quality=\"suspect\"} " << quality_suspect_ << "\n"
+      << "# HELP sonomesh_suspect_reasons_total Suspect results by reason (one may have several).\n"
+      << "# TYPE sonomesh_suspect_reasons_total counter\n";
+  for (const auto& [reason, n] : suspect_reasons_) {
+    out << "sonomesh_suspect_reasons_total{reason=\"" << prom_label(reason) << "\"} " << n << "\n";
   }
 
   out << "# HELP sonomesh_latency_seconds Received-to-mesh-written latency over the last "
@@ -242,8 +280,18 @@ std::string RunStats::prometheus_text() const {
       << "sonomesh_source_connected " << (source_state_ == SourceState::Connected ? 1 : 0) << "\n"
       << "# HELP sonomesh_source_outages_total Times the source was lost.\n"
       << "# TYPE sonomesh_source_outages_total counter\n"
-      << "sonomesh_source_outages_total " << outages_ << "\n"
-      << "# HELP sonomesh_uptime_seconds Seconds since the daemon started.\n"
+      << "sonomesh_source_outages_total " << outages_ << "\n";
+  if (igtl_enabled_) {
+    out << "# HELP sonomesh_igtl_clients OpenIGTLink clients connected.\n"
+        << "# TYPE sonomesh_igtl_clients gauge\n"
+        << "sonomesh_igtl_clients " << igtl_clients_ << "\n"
+        << "# HELP sonomesh_igtl_results_total OpenIGTLink result sets by outcome (dropped: a "
+           "slow client had newer ones waiting).\n"
+        << "# TYPE sonomesh_igtl_results_total counter\n"
+        << "sonomesh_igtl_results_total{outcome=\"sent\"} " << igtl_sent_ << "\n"
+        << "sonomesh_igtl_results_total{outcome=\"dropped\"} " << igtl_dropped_ << "\n";
+  }
+  out << "# HELP sonomesh_uptime_seconds Seconds since the daemon started.\n"
       << "# TYPE sonomesh_uptime_seconds gauge\n"
       << "sonomesh_uptime_seconds "
       << prom_number(std::chrono::duration<double>(std::chrono::steady_clock::now() - started_)

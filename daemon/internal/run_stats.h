@@ -10,6 +10,7 @@
 #include <mutex>
 #include <optional>
 #include <string>
+#include <vector>
 
 #include <nlohmann/json.hpp>
 
@@ -41,7 +42,12 @@ class RunStats {
   void set_queue_depth(std::size_t depth, std::size_t capacity);
   void set_seed(std::optional<std::array<float, 3>> seed_mm, std::string origin);
   void set_last_processed(std::uint64_t sequence, int genus);
+  /// The quality verdict of a processed volume (DESIGN.md): counted per verdict and per reason,
+  /// and shown as the latest one.
+  void count_quality(bool ok, const std::vector<std::string>& reasons);
   void count_outage();
+  /// The OpenIGTLink server's clients and result sets sent or dropped (slow clients).
+  void set_igtl(std::size_t clients, std::uint64_t sent, std::uint64_t dropped);
 
   SourceState source_state() const;
   std::uint64_t counter(JournalStatus status) const;
@@ -74,7 +80,16 @@ class RunStats {
   std::string seed_origin_;
   std::optional<std::uint64_t> last_sequence_;
   int last_genus_ = -1;
+  std::uint64_t quality_ok_ = 0;
+  std::uint64_t quality_suspect_ = 0;
+  std::map<std::string, std::uint64_t> suspect_reasons_;
+  std::optional<bool> last_quality_ok_;
+  std::vector<std::string> last_quality_reasons_;
   std::uint64_t outages_ = 0;
+  bool igtl_enabled_ = false;
+  std::size_t igtl_clients_ = 0;
+  std::uint64_t igtl_sent_ = 0;
+  std::uint64_t igtl_dropped_ = 0;
 };
 
 }  // namespace sonomesh::daemon

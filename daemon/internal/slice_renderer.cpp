@@ -74,6 +74,7 @@ void SliceRenderer::update(const volume::Volume& input, const segment::Mesh& mes
   frame->dims = input.dims();
   frame->spacing_mm = input.spacing_mm();
   frame->origin_mm = input.origin_mm();
+  frame->direction = input.direction();
   const volume::Vec3f seed_vox = input.mm_to_index(seed_mm);
   for (int a = 0; a < 3; ++a) {
     frame->seed_index[a] =
@@ -182,6 +183,8 @@ nlohmann::json SliceRenderer::info() const {
                       {"dims", vec(frame->dims)},
                       {"spacing_mm", vec(frame->spacing_mm)},
                       {"origin_mm", vec(frame->origin_mm)},
+                      {"direction", std::vector<float>(frame->direction.data(),
+                                                       frame->direction.data() + 9)},
                       {"seed_index", vec(frame->seed_index)}};
   for (SliceAxis axis : {SliceAxis::Axial, SliceAxis::Coronal, SliceAxis::Sagittal}) {
     const auto [u, v, n] = kAxes[axis_number(axis)];

@@ -51,8 +51,8 @@ class SliceRenderer {
 
   /// The PNG of one slice of the latest result, or nothing before the first one.
   std::optional<std::string> png(SliceAxis axis);
-  /// What the page needs to turn a click into a seed: sequence, dims, spacing, origin, the seed
-  /// index, and per slice its pixel size and which index axes it shows. Null before a result.
+  /// What the page needs to turn a click into a (world-frame) seed: sequence, dims, spacing,
+  /// origin, direction (column-major: column c is index axis c in LPS), the seed index, and per slice its pixel size and which index axes it shows. Null before a result.
   nlohmann::json info() const;
 
  private:
@@ -66,6 +66,7 @@ class SliceRenderer {
     std::uint64_t sequence = 0;
     volume::Vec3i dims = volume::Vec3i::Zero();
     volume::Vec3f spacing_mm = volume::Vec3f::Ones(), origin_mm = volume::Vec3f::Zero();
+    volume::Mat3f direction = volume::Mat3f::Identity();  // the grid's axes in the world
     volume::Vec3i seed_index = volume::Vec3i::Zero();
     float low = 0, high = 1;  // intensity window shared by the three slices
     std::array<Slice, 3> slices;

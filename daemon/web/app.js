@@ -201,7 +201,11 @@ function onSliceClick(axis, event) {
   const ijk = sliceInfo.seed_index.slice();
   ijk[s.u_axis] = u;
   ijk[s.v_axis] = v;
-  const seed = ijk.map((c, a) => sliceInfo.origin_mm[a] + sliceInfo.spacing_mm[a] * c);
+  // POST /seed takes world mm: origin + D (spacing * ijk), D column-major (column = index axis).
+  const step = ijk.map((c, a) => sliceInfo.spacing_mm[a] * c);
+  const d = sliceInfo.direction || [1, 0, 0, 0, 1, 0, 0, 0, 1];
+  const seed = [0, 1, 2].map((r) => sliceInfo.origin_mm[r] +
+      d[r] * step[0] + d[3 + r] * step[1] + d[6 + r] * step[2]);
   fetch('/seed', { method: 'POST', body: JSON.stringify({ seed_mm: seed }) })
       .then((r) => r.json())
       .then((j) => {

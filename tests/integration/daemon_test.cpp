@@ -22,6 +22,7 @@
 
 #include "daemon/internal/atomic_file.h"
 #include "daemon/internal/run_config.h"
+#include "igtl_test_client.h"
 #include "prometheus_parse.h"
 #include "reconstruct/reconstruct.h"
 #include "sim/sim.h"
@@ -513,4 +514,39 @@ TEST(DaemonRun, PrintConfigAndArgumentErrors) {
   ASSERT_TRUE(code.has_value());
   EXPECT_NE(*code, 0);
   EXPECT_FALSE(bad_source.stderr_text().empty());
+}
+
+TEST(DaemonRun, IgtlListenSendsEveryResultAndTheJournalCarriesTheVerdict) {
+  const ScratchDir dir("igtl");
+  std::vector<std::string> argv{SONOMESHD_EXE, "run", "--source", "sim:sphere?rate=4&size=48",
+                                "--out", (dir / "out").string(), "--http", "off",
+                                "--igtl-listen", "127.0.0.1:0", "--target", "dark"};
+  Child daemon(argv, dir / "daemon");
+  const fs::path out = dir / "out";
+  ASSERT_TRUE(wait_until([&] { return !events_of(out, "igtl_listening").empty(); }, 10000ms))
+      << daemon.stderr_text();
+  const int port = events_of(out, "igtl_listening")[0]["port"].get<int>();
+  ASSERT_TRUE(wait_until([&] { return fs::exists(out / "latest.ply"); }, 15000ms));
+  // Joins late: the latest result arrives at once, in the same frame as its labels.
+  sonomesh::testing::TestClient client(port);
+  ASSERT_TRUE(client.connected());
+  client.send(2, "STATUS", std::string(50, '\0'));  // what Slicer sends on connect
+  auto first = sonomesh::testing::read_set(client);
+  ASSERT_TRUE(first);
+  EXPECT_GT(first->points_ras.size(), 50u);
+  sonomesh::testing::expect_mesh_on_label_boundary(*first);
+  EXPECT_EQ(first->status["status"], "processed");
+  EXPECT_EQ(first->status["quality"], "ok");
+  // Then every processed volume, in order.
+  auto second = sonomesh::testing::read_set(client, 10000ms);
+  ASSERT_TRUE(second);
+  EXPECT_GT(second->status["sequence"].get<int>(), first->status["sequence"].get<int>());
+  daemon.signal(SIGTERM);
+  ASSERT_TRUE(daemon.wait(20000ms).has_value());
+  for (const auto& [seq, line] : check_journal(out)) {
+    if (line["status"] != "processed") continue;
+    EXPECT_EQ(line["target"], "dark") << line.dump();
+    EXPECT_TRUE(line["quality"] == "ok" || line["quality"] == "suspect") << line.dump();
+    EXPECT_TRUE(line["quality_reasons"].is_array()) << line.dump();
+  }
 }

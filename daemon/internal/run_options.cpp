@@ -1,0 +1,435 @@
+#include "daemon/internal/run_options.h"
+
+#include <toml++/toml.h>
+
+#include <cmath>
+#include <cstdio>
+#include <sstream>
+#include <type_traits>
+
+#include "daemon/internal/run_config.h"
+
+namespace sonomesh::daemon {
+
+namespace {
+
+using reconstruct::DivergenceMode;
+using K = OptionKind;
+
+constexpr double kBig = 1e12;
+// Ranges: closed [lo, hi] unless marked open.
+constexpr OptionRange closed(double lo, double hi) { return {lo, hi, false, false}; }
+constexpr OptionRange above(double lo, double hi) { return {lo, hi, true, false}; }
+constexpr OptionRange open(double lo, double hi) { return {lo, hi, true, true}; }
+
+template <typename Ref>
+using Field = std::remove_reference_t<decltype(std::declval<Ref>()(std::declval<RunConfig&>()))>;
+
+// A number field reached through `ref` (a lambda returning a reference into RunConfig).
+template <typename Ref>
+OptionSpec num(const char* table, const char* key, const char* unit, OptionRange range,
+               const char* doc, Ref ref) {
+  using T = Field<Ref>;
+  return {
+      table,
+      key,
+      std::is_integral_v<T> ? K::Integer : K::Number,
+      unit,
+      range,
+      {},
+      doc,
+      [ref](const RunConfig& c) -> OptionValue {
+        return static_cast<double>(ref(const_cast<RunConfig&>(c)));
+      },
+      [ref](RunConfig& c, const OptionValue& v) { ref(c) = static_cast<T>(std::get<double>(v)); }};
+}
+
+template <typename Ref>
+OptionSpec flag(const char* table, const char* key, const char* doc, Ref ref) {
+  return {table,
+          key,
+          K::Bool,
+          "",
+          {},
+          {},
+          doc,
+          [ref](const RunConfig& c) -> OptionValue { return ref(const_cast<RunConfig&>(c)); },
+          [ref](RunConfig& c, const OptionValue& v) { ref(c) = std::get<bool>(v); }};
+}
+
+template <typename Ref>
+OptionSpec text(const char* table, const char* key, const char* doc, Ref ref) {
+  return {table,
+          key,
+          K::String,
+          "",
+          {},
+          {},
+          doc,
+          [ref](const RunConfig& c) -> OptionValue {
+            return std::string(ref(const_cast<RunConfig&>(c)));
+          },
+          [ref](RunConfig& c, const OptionValue& v) { ref(c) = std::get<std::string>(v); }};
+}
+
+// A string out of `choices`, stored through `to`/`from` (an enum).
+template <typename To, typename From>
+OptionSpec choice(const char* table, const char* key, std::vector<std::string> choices,
+                  const char* doc, To to, From from) {
+  return {table,
+          key,
+          K::Choice,
+          "",
+          {},
+          std::move(choices),
+          doc,
+          [from](const RunConfig& c) -> OptionValue { return std::string(from(c)); },
+          [to](RunConfig& c, const OptionValue& v) { to(c, std::get<std::string>(v)); }};
+}
+
+#define REF(expr) \
+  [](RunConfig & c) -> auto& { return c.expr; }
+
+std::vector<OptionSpec> daemon_options() {
+  std::vector<OptionSpec> o;
+  o.push_back(text("daemon", "source", "SOURCE URI (sim:, replay:, unix:, tcp:, usb:, v4l2:)",
+                   REF(source)));
+  o.push_back({"daemon",
+               "out",
+               K::String,
+               "",
+               {},
+               {},
+               "output directory (journal, meshes)",
+               [](const RunConfig& c) -> OptionValue { return c.out.string(); },
+               [](RunConfig& c, const OptionValue& v) { c.out = std::get<std::string>(v); }});
+  o.push_back({"daemon",
+               "seed_mm",
+               K::Triple,
+               "mm",
+               closed(-1e6, 1e6),
+               {},
+               "seed; unset: the sim: phantom's seed, else the volume centre",
+               [](const RunConfig& c) -> OptionValue {
+                 if (!c.seed_mm) return std::monostate{};
+                 const auto& s = *c.seed_mm;
+                 return std::array<double, 3>{s[0], s[1], s[2]};
+               },
+               [](RunConfig& c, const OptionValue& v) {
+                 const auto& s = std::get<std::array<double, 3>>(v);
+                 c.seed_mm = std::array<float, 3>{
+                     static_cast<float>(s[0]), static_cast<float>(s[1]), static_cast<float>(s[2])};
+               }});
+  o.push_back(num("daemon", "queue_capacity", "volumes", closed(1, 64),
+                  "volumes waiting for the worker", REF(queue_capacity)));
+  o.push_back(choice(
+      "daemon", "log_level", {"trace", "debug", "info", "warn", "error", "critical", "off"},
+      "log level", [](RunConfig& c, const std::string& s) { c.log_level = s; },
+      [](const RunConfig& c) { return c.log_level; }));
+  o.push_back({"http",
+               "address",
+               K::String,
+               "",
+               {},
+               {},
+               "HTTP status HOST:PORT; \"off\" disables",
+               [](const RunConfig& c) -> OptionValue { return c.http_address; },
+               [](RunConfig& c, const OptionValue& v) {
+                 c.http_address = std::get<std::string>(v);
+                 c.http_explicit = true;  // an address asked for must bind
+               }});
+  o.push_back(
+      flag("http", "allow_remote", "allow a non-loopback HTTP address", REF(allow_remote_http)));
+  return o;
+}
+
+std::vector<OptionSpec> source_and_output_options() {
+  std::vector<OptionSpec> o;
+  o.push_back(num("source", "rate_hz", "Hz", closed(0, 1000),
+                  "replay pacing; 0: recorded timing or unpaced", REF(rate_hz)));
+  o.push_back({"source",
+               "max_dims",
+               K::Triple,
+               "voxels",
+               closed(1, 65535),
+               {},
+               "largest volume accepted, per axis (whole numbers)",
+               [](const RunConfig& c) -> OptionValue {
+                 return std::array<double, 3>{double(c.max_dims[0]), double(c.max_dims[1]),
+                                              double(c.max_dims[2])};
+               },
+               [](RunConfig& c, const OptionValue& v) {
+                 const auto& d = std::get<std::array<double, 3>>(v);
+                 for (int i = 0; i < 3; ++i) c.max_dims[i] = static_cast<int>(d[i]);
+               }});
+  o.push_back(num("source", "max_payload_bytes", "bytes", closed(1, 1ull << 40),
+                  "largest record payload accepted", REF(max_payload_bytes)));
+  o.push_back(
+      text("source", "record_path", "tee good volumes to this .usv (\"\": off)", REF(record_path)));
+  o.push_back(num("source", "connect_timeout_ms", "ms", closed(1, 600000), "socket connect timeout",
+                  REF(connect_timeout_ms)));
+  o.push_back(num("limits", "max_lost_lines", "lines", closed(0, kBig),
+                  "a bigger sequence jump is an event, not N lines", REF(max_lost_lines)));
+  o.push_back(num("limits", "keep_meshes", "meshes", closed(0, kBig),
+                  "keep the newest N meshes and reports; 0 keeps all", REF(keep_meshes)));
+  o.push_back(text("outputs", "igtl_listen",
+                   "OpenIGTLink server ADDR:PORT for 3D Slicer (\"\": off)", REF(igtl_listen)));
+  o.push_back(flag("outputs", "igtl_any_address", "allow a non-loopback igtl_listen",
+                   REF(igtl_any_address)));
+  return o;
+}
+
+std::vector<OptionSpec> pipeline_options() {
+  std::vector<OptionSpec> o;
+  o.push_back(choice(
+      "pipeline", "target", {"dark", "bright", "auto"},
+      "target darker or brighter than its surroundings, or decided from the seed region",
+      [](RunConfig& c, const std::string& s) {
+        c.pipeline.target = s == "bright" ? TargetPolarity::Bright
+                            : s == "auto" ? TargetPolarity::Auto
+                                          : TargetPolarity::Dark;
+      },
+      [](const RunConfig& c) { return std::string(to_string(c.pipeline.target)); }));
+  o.push_back({"pipeline",
+               "smooth_sigma_mm",
+               K::NumberOrAuto,
+               "mm",
+               closed(0, 20),
+               {},
+               "pre-smoothing sigma; \"auto\": one voxel; 0: none",
+               [](const RunConfig& c) -> OptionValue {
+                 if (!c.pipeline.smooth_sigma_mm) return std::string("auto");
+                 return static_cast<double>(*c.pipeline.smooth_sigma_mm);
+               },
+               [](RunConfig& c, const OptionValue& v) {
+                 if (std::holds_alternative<double>(v)) {
+                   c.pipeline.smooth_sigma_mm = static_cast<float>(std::get<double>(v));
+                 } else {
+                   c.pipeline.smooth_sigma_mm.reset();
+                 }
+               }});
+  o.push_back(flag("pipeline", "reinflate",
+                   "second balloon pass from the reconstruction back to the wall",
+                   REF(pipeline.reinflate)));
+  o.push_back(num("pipeline", "reinflate_max_move_vox", "vox", above(0, 20),
+                  "farthest a vertex moves in the second pass",
+                  REF(pipeline.reinflate_pass.max_move_vox)));
+  o.push_back(num("pipeline", "reinflate_max_iterations", "iterations", closed(1, 10000),
+                  "second pass length", REF(pipeline.reinflate_pass.max_iterations)));
+  o.push_back(flag("pipeline", "cell_from_voxel", "true: poisson.cell_mm = the finest spacing",
+                   REF(pipeline.cell_from_voxel)));
+  return o;
+}
+
+#define BAL(field) REF(pipeline.balloon.field)
+
+std::vector<OptionSpec> balloon_options() {
+  const char* t = "pipeline.balloon";
+  std::vector<OptionSpec> o;
+  o.push_back(num(t, "time_step", "", above(0, 10), "h per iteration", BAL(time_step)));
+  o.push_back(
+      num(t, "inflation_vox", "vox", above(0, 10), "mu, outward speed", BAL(inflation_vox)));
+  o.push_back(num(t, "umbrella_weight", "", closed(0, 10),
+                  "lambda, smoothing towards the "
+                  "neighbours",
+                  BAL(umbrella_weight)));
+  o.push_back(num(t, "initial_radius_vox", "vox", closed(1, 100), "radius of the first sphere",
+                  BAL(initial_radius_vox)));
+  o.push_back(flag(t, "relative_cost", "cost rises relative to the intensity they start from",
+                   BAL(relative_cost)));
+  o.push_back(num(t, "tau_cost", "", closed(0, 1e6), "boundary cost threshold; 0: from the image",
+                  BAL(tau_cost)));
+  o.push_back(num(t, "tau_cost_fraction", "", open(0, 1),
+                  "with tau_cost 0: fraction of the target-to-tissue climb",
+                  BAL(tau_cost_fraction)));
+  o.push_back(num(t, "climb_backstop_fraction", "", above(0, 1),
+                  "stop once the image rose this far to the tissue", BAL(climb_backstop_fraction)));
+  o.push_back(num(t, "cost_window_vox", "vox", closed(0, 1e4),
+                  "leak length of the cost; 0: the paper's plain sum", BAL(cost_window_vox)));
+  o.push_back(flag(t, "rise_per_axis", "false: the paper's dot product", BAL(rise_per_axis)));
+  o.push_back(flag(t, "noise_allowance", "threshold grows with the path", BAL(noise_allowance)));
+  o.push_back(
+      flag(t, "snap_to_wall", "a stopped vertex ends on the slope's peak", BAL(snap_to_wall)));
+  o.push_back(num(t, "snap_back_vox", "vox", closed(0, 8), "snap window behind the stop",
+                  BAL(snap_back_vox)));
+  o.push_back(num(t, "snap_ahead_vox", "vox", closed(0, 8), "snap window ahead of the stop",
+                  BAL(snap_ahead_vox)));
+  o.push_back(num(t, "snap_min_slope", "per vox", closed(0, 10), "least <grad I, n> / I",
+                  BAL(snap_min_slope)));
+  o.push_back(num(t, "tau_curv", "", above(0, 2), "curvature stop threshold", BAL(tau_curv)));
+  o.push_back(num(t, "self_intersection_cos", "", closed(-1, 1),
+                  "cosine of the self-intersection test", BAL(self_intersection_cos)));
+  o.push_back(num(t, "target_edge_vox", "vox", closed(0.25, 20), "remeshing edge length L",
+                  BAL(target_edge_vox)));
+  o.push_back(num(t, "remesh_every_iterations", "iterations", closed(1, 1000), "remeshing period",
+                  BAL(remesh_every_iterations)));
+  o.push_back(num(t, "max_iterations", "iterations", closed(1, 1e6), "iteration limit",
+                  BAL(max_iterations)));
+  o.push_back(num(t, "max_area_fraction", "", above(0, 100),
+                  "leak bound, of the volume's bounding-box area", BAL(max_area_fraction)));
+  o.push_back(num(t, "stall_window_iterations", "iterations", closed(1, 1e5), "stall test window",
+                  BAL(stall_window_iterations)));
+  o.push_back(num(t, "stall_motion_vox", "vox", closed(0, 10), "least motion over the window",
+                  BAL(stall_motion_vox)));
+  o.push_back(num(t, "threads", "threads", closed(0, 256), "0: the machine's cores", BAL(threads)));
+  return o;
+}
+
+#define POI(field) REF(pipeline.poisson.field)
+
+std::vector<OptionSpec> poisson_options() {
+  const char* t = "pipeline.poisson";
+  std::vector<OptionSpec> o;
+  o.push_back(num(t, "cell_mm", "mm", closed(1e-3, 100), "grid cell (cell_from_voxel false)",
+                  POI(cell_mm)));
+  o.push_back(num(t, "padding_fraction", "", closed(0.1, 2), "margin per side, of the extent",
+                  POI(padding_fraction)));
+  o.push_back(num(t, "smoothing_cells", "cells", closed(0, 20), "normal splat sigma",
+                  POI(smoothing_cells)));
+  o.push_back(num(t, "min_feature_cells", "cells", closed(0, 16),
+                  "a finer cell where a gap or solid is thinner; 0: off", POI(min_feature_cells)));
+  o.push_back(num(t, "min_cell_fraction", "", closed(0.1, 1), "finest thin-feature cell",
+                  POI(min_cell_fraction)));
+  o.push_back(
+      num(t, "max_grid_dim", "cells", closed(16, 2048), "largest grid axis", POI(max_grid_dim)));
+  o.push_back(num(t, "fft_threads", "threads", closed(1, 256), "FFTW threads", POI(fft_threads)));
+  o.push_back(choice(
+      t, "divergence", {"spectral", "central-difference"}, "divergence operator",
+      [](RunConfig& c, const std::string& s) {
+        c.pipeline.poisson.divergence =
+            s == "spectral" ? DivergenceMode::Spectral : DivergenceMode::CentralDifference;
+      },
+      [](const RunConfig& c) {
+        return std::string(c.pipeline.poisson.divergence == DivergenceMode::Spectral
+                               ? "spectral"
+                               : "central-difference");
+      }));
+  o.push_back(flag(t, "measure_fft_plans", "FFTW_MEASURE plans", POI(measure_fft_plans)));
+  return o;
+}
+
+std::string number_text(double v) {
+  std::ostringstream out;
+  out << v;
+  return out.str();
+}
+
+}  // namespace
+
+bool OptionRange::contains(double v) const {
+  if (!std::isfinite(v)) return false;
+  return (lo_open ? v > lo : v >= lo) && (hi_open ? v < hi : v <= hi);
+}
+
+std::string OptionRange::text() const {
+  return std::string(lo_open ? "(" : "[") + number_text(lo) + ", " + number_text(hi) +
+         (hi_open ? ")" : "]");
+}
+
+const std::vector<OptionSpec>& run_options() {
+  static const std::vector<OptionSpec> table = [] {
+    std::vector<OptionSpec> all;
+    for (auto part : {daemon_options(), source_and_output_options(), pipeline_options(),
+                      balloon_options(), poisson_options()}) {
+      for (auto& spec : part) all.push_back(std::move(spec));
+    }
+    return all;
+  }();
+  return table;
+}
+
+const OptionSpec* find_option(const std::string& table, const std::string& key) {
+  for (const OptionSpec& spec : run_options()) {
+    if (table == spec.table && key == spec.key) return &spec;
+  }
+  return nullptr;
+}
+
+std::optional<std::string> check_value(const OptionSpec& spec, const OptionValue& value) {
+  const std::string unit = *spec.unit ? std::string(" ") + spec.unit : std::string();
+  auto in_range = [&](double v) -> std::optional<std::string> {
+    if (!spec.range.contains(v)) {
+      return "must be in " + spec.range.text() + unit + ", got " + number_text(v);
+    }
+    return std::nullopt;
+  };
+  switch (spec.kind) {
+    case K::Integer:
+      if (auto err = in_range(std::get<double>(value))) return err;
+      if (std::get<double>(value) != std::floor(std::get<double>(value)))
+        return std::string("must be a whole number");
+      return std::nullopt;
+    case K::Number:
+      return in_range(std::get<double>(value));
+    case K::NumberOrAuto:
+      if (std::holds_alternative<std::string>(value)) {
+        if (std::get<std::string>(value) == "auto") return std::nullopt;
+        return std::string("must be \"auto\" or a number");
+      }
+      return in_range(std::get<double>(value));
+    case K::Triple:
+      if (std::holds_alternative<std::monostate>(value)) return std::nullopt;
+      for (double v : std::get<std::array<double, 3>>(value)) {
+        if (auto err = in_range(v)) return err;
+        if (spec.range.lo >= 1 && v != std::floor(v)) return std::string("must be whole numbers");
+      }
+      return std::nullopt;
+    case K::Choice: {
+      const std::string& s = std::get<std::string>(value);
+      std::string list;
+      for (const std::string& c : spec.choices) {
+        if (c == s) return std::nullopt;
+        list += (list.empty() ? "\"" : ", \"") + c + "\"";
+      }
+      return "must be one of " + list + ", got \"" + s + "\"";
+    }
+    case K::Bool:
+    case K::String:
+      return std::nullopt;
+  }
+  return std::nullopt;
+}
+
+std::optional<std::string> check_cross_rules(const RunConfig& c) {
+  const segment::BalloonOptions& b = c.pipeline.balloon;
+  // Each rule keeps the balloon's explicit Euler step from jumping a wall or diverging.
+  if (b.time_step * b.inflation_vox > 0.5f) {
+    return "pipeline.balloon: time_step * inflation_vox must be <= 0.5 voxel per iteration";
+  }
+  if (b.time_step * b.umbrella_weight > 1.0f) {
+    return "pipeline.balloon: time_step * umbrella_weight must be <= 1";
+  }
+  // The snap samples at most 8 voxels along the normal.
+  if (b.snap_back_vox + b.snap_ahead_vox > 8.0f) {
+    return "pipeline.balloon: snap_back_vox + snap_ahead_vox must be <= 8 vox";
+  }
+  return std::nullopt;
+}
+
+std::string option_toml(const OptionValue& value) {
+  struct Print {
+    std::string operator()(std::monostate) const { return ""; }
+    std::string operator()(bool b) const { return b ? "true" : "false"; }
+    std::string operator()(double v) const {
+      if (v == std::floor(v) && std::fabs(v) < 1e15) {
+        return std::to_string(static_cast<long long>(v));
+      }
+      char buf[64];
+      std::snprintf(buf, sizeof buf, "%.9g", v);
+      std::string s = buf;
+      if (s.find_first_of(".eEn") == std::string::npos) s += ".0";
+      return s;
+    }
+    std::string operator()(const std::string& s) const {
+      std::ostringstream out;
+      out << toml::value<std::string>(s);
+      return out.str();
+    }
+    std::string operator()(const std::array<double, 3>& a) const {
+      return "[" + (*this)(a[0]) + ", " + (*this)(a[1]) + ", " + (*this)(a[2]) + "]";
+    }
+  };
+  return std::visit(Print{}, value);
+}
+
+}  // namespace sonomesh::daemon

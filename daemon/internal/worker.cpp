@@ -1,0 +1,186 @@
+#include "daemon/internal/worker.h"
+
+#include <spdlog/spdlog.h>
+
+#include "daemon/internal/outputs.h"
+
+namespace sonomesh::daemon {
+
+using Clock = std::chrono::steady_clock;
+
+namespace {
+
+constexpr auto kPollTimeout = std::chrono::milliseconds(200);
+
+double ms_between(Clock::time_point a, Clock::time_point b) {
+  return std::chrono::duration<double, std::milli>(b - a).count();
+}
+
+nlohmann::json vec_json(const SeedMm& v) { return {v[0], v[1], v[2]}; }
+
+// The result's journal fields: topology, size, and the quality verdict (DESIGN.md).
+void describe_result(const PipelineResult& result, nlohmann::json& line) {
+  line["genus"] = result.topology.genus;
+  line["components"] = result.topology.components;
+  line["watertight"] = result.topology.watertight;
+  line["vertices"] = result.topology.vertices;
+  line["faces"] = result.topology.faces;
+  line["volume_ml"] = result.enclosed_volume_ml;
+  line["balloon_iterations"] = result.balloon_iterations;
+  line["target"] = to_string(result.target);
+  line["quality"] = result.quality_ok ? "ok" : "suspect";
+  line["quality_reasons"] = result.quality_reasons;
+}
+
+}  // namespace
+
+Worker::Worker(RunContext context, VolumeQueue& in, ResultQueue& out,
+               std::optional<SeedMm> phantom_seed_mm, std::stop_token abort)
+    : context_(std::move(context)),
+      in_(in),
+      out_(out),
+      phantom_seed_mm_(phantom_seed_mm),
+      abort_(std::move(abort)) {}
+
+void Worker::override_seed(const SeedMm& seed_mm) {
+  std::lock_guard lock(override_mutex_);
+  override_mm_ = seed_mm;
+}
+
+bool Worker::override_waiting() {
+  std::lock_guard lock(override_mutex_);
+  return override_mm_.has_value();
+}
+
+void Worker::run() {
+  while (true) {
+    if (turn_hook_) turn_hook_();  // web: the systemd watchdog, from this loop
+    auto item = in_.pop(kPollTimeout);
+    context_.stats.set_queue_depth(in_.size(), in_.capacity());
+    if (!item) {
+      if (in_.closed() && in_.size() == 0) break;
+      continue;
+    }
+    try {
+      process(std::move(*item));
+    } catch (const std::exception& e) {
+      context_.fatal(e.what());  // the journal cannot be written: nothing sensible can continue
+    }
+  }
+  out_.close();
+}
+
+void Worker::fail(const QueuedVolume& item, const std::string& reason, nlohmann::json line) {
+  const std::uint64_t seq = item.raw.sequence;
+  line["reason"] = reason;
+  line["latency_ms"] = ms_between(item.received, Clock::now());
+  context_.recorder.record(seq, JournalStatus::Failed, std::move(line), item.epoch);
+  context_.stats.set_last_error("sequence " + std::to_string(seq) + ": " + reason);
+  spdlog::warn("sequence {} failed: {}", seq, reason);
+}
+
+// The operator's seeds (POST /seed, TOML/CLI seed_mm) are world mm; the pipeline, the phantom's
+// seed and the tracked seed (the pipeline's deepest interior point) are in the grid frame. The
+// journal and /status say world mm, as the operator gave them.
+std::optional<SeedCandidate> Worker::pick_seed(const volume::Volume& input, const RunConfig& config,
+                                               nlohmann::json& line) {
+  const auto to_grid = [&](const std::optional<SeedMm>& world) -> std::optional<SeedMm> {
+    if (!world) return std::nullopt;
+    const Vec3f g = internal::seed_world_to_grid_mm(input, Vec3f((*world)[0], (*world)[1], (*world)[2]));
+    return SeedMm{g.x(), g.y(), g.z()};
+  };
+  const auto to_world = [&](const SeedMm& grid) {
+    const Vec3f w = input.grid_to_world_mm(Vec3f(grid[0], grid[1], grid[2]));
+    return SeedMm{w.x(), w.y(), w.z()};
+  };
+  SeedInputs inputs;
+  {
+    std::lock_guard lock(override_mutex_);
+    inputs.override_mm = to_grid(std::exchange(override_mm_, std::nullopt));
+  }
+  inputs.configured_mm = to_grid(config.seed_mm);
+  inputs.phantom_mm = phantom_seed_mm_;
+  const Vec3f centre = input.index_to_mm((input.dims() - Vec3i::Ones()).cast<float>() * 0.5f);
+  inputs.centre_mm = {centre.x(), centre.y(), centre.z()};
+  const SeedChoice choice = choose_seed(seeds_.candidates(inputs), [&](const SeedMm& mm) {
+    return check_seed(input, Vec3f(mm[0], mm[1], mm[2]));
+  });
+  nlohmann::json refused = nlohmann::json::array();
+  for (const auto& [c, why] : choice.refused) {
+    refused.push_back(
+        {{"origin", to_string(c.origin)}, {"seed_mm", vec_json(to_world(c.mm))}, {"why", why}});
+  }
+  if (!refused.empty()) line["seeds_refused"] = refused;
+  if (choice.chosen) {
+    const SeedMm world = to_world(choice.chosen->mm);
+    line["seed_mm"] = vec_json(world);
+    line["seed_origin"] = to_string(choice.chosen->origin);
+    context_.stats.set_seed(world, to_string(choice.chosen->origin));
+  }
+  return choice.chosen;
+}
+
+void Worker::process(QueuedVolume item) {
+  const RunConfig config = context_.config.snapshot();
+  const std::uint64_t seq = item.raw.sequence;
+  const double queue_wait_ms = ms_between(item.received, Clock::now());
+  volume::Volume input;
+  try {
+    input = volume::Volume::from_raw(item.raw);
+  } catch (const std::exception& e) {
+    return fail(item, std::string("bad volume: ") + e.what(), nlohmann::json::object());
+  }
+  item.raw.voxels = {};  // the Volume holds its own copy
+
+  nlohmann::json line = nlohmann::json::object();
+  const std::optional<SeedCandidate> seed = pick_seed(input, config, line);
+  if (!seed) {
+    const std::string why = line["seeds_refused"].back()["why"].get<std::string>();
+    return fail(item, "no usable seed: " + why, std::move(line));
+  }
+  const Vec3f seed_mm(seed->mm[0], seed->mm[1], seed->mm[2]);
+  PipelineResult result;
+  try {
+    result = run_pipeline(input, seed_mm, config.pipeline, buffers_, abort_);
+  } catch (const std::exception& e) {
+    return fail(item, std::string("pipeline: ") + e.what(), std::move(line));
+  }
+  nlohmann::json& timings = line["timings_ms"];
+  timings["queue_wait"] = queue_wait_ms;
+  for (const auto& [stage, ms] : result.timings.stages()) timings[stage] = ms;
+  timings["total"] = result.timings.total_ms;
+  if (!result.ok) {
+    const bool aborted = abort_.stop_requested();
+    return fail(item, aborted ? "shutdown: aborted by a second signal" : result.error,
+                std::move(line));
+  }
+  std::optional<SeedMm> deepest;
+  if (result.deepest_interior_mm) {
+    const Vec3f& d = *result.deepest_interior_mm;
+    deepest = SeedMm{d.x(), d.y(), d.z()};
+  }
+  seeds_.on_result(deepest, override_waiting());
+  describe_result(result, line);
+
+  WorkerResult out;
+  ProcessedVolume& v = out.volume;
+  v.sequence = seq;
+  v.epoch = item.epoch;
+  v.received = item.received;
+  v.report = report_json(result, "sequence " + std::to_string(seq), input, seed_mm);
+  v.report["sequence"] = seq;
+  v.report["seed_origin"] = to_string(seed->origin);
+  v.report["queue_wait_ms"] = queue_wait_ms;
+  // The outputs are in the input's world frame (LPS mm, DESIGN.md "Geometry and files"): the
+  // mesh mapped there, the labels given the input's direction (they share its grid and origin).
+  v.mesh = internal::mesh_to_world(result.mesh, input);
+  v.labels = std::move(result.labels);
+  if (v.labels) v.labels->set_direction(input.direction());
+  v.timings = result.timings;
+  v.seed_grid_mm = seed_mm;
+  v.input = std::make_shared<const volume::Volume>(std::move(input));
+  out.line = std::move(line);
+  out_.push(std::move(out));
+}
+
+}  // namespace sonomesh::daemon
