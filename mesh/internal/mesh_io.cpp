@@ -2,6 +2,7 @@
 
 #include <Eigen/Geometry>
 #include <bit>
+#include <cmath>
 #include <cstring>
 #include <fstream>
 #include <sstream>
@@ -335,7 +336,15 @@ MeshReadResult read_ply(const std::filesystem::path& path) {
           if (p == ix) r.mesh.vertices[n].x() = float(value);
           if (p == iy) r.mesh.vertices[n].y() = float(value);
           if (p == iz) r.mesh.vertices[n].z() = float(value);
-          if (p == istop) r.stop[n] = static_cast<std::uint8_t>(value);
+          if (p == istop) {
+            // A stop reason is a small code; anything else is not a balloon file's (found by
+            // fuzz_ply: the cast of an out-of-range value is undefined).
+            if (!(value >= 0 && value <= 255 && value == std::floor(value)))
+              return fail(MeshIoError::Code::BadHeader,
+                          "vertex " + std::to_string(n) + " has stop value " +
+                              std::to_string(value) + ", not a stop reason code");
+            r.stop[n] = static_cast<std::uint8_t>(value);
+          }
         }
       }
     }

@@ -65,6 +65,18 @@ TEST(MeshIo, BalloonPlyCarriesStopReasons) {
   EXPECT_THROW(write_balloon_ply(m, std::vector<StopReason>(2), path), std::invalid_argument);
 }
 
+// fuzz_ply's finding: a stop value no uchar holds was cast anyway (undefined behaviour).
+TEST(MeshIo, StopValueOutsideTheCodesIsRefused) {
+  const auto path = temp("badstop.ply");
+  std::ofstream(path) << "ply\nformat ascii 1.0\nelement vertex 3\n"
+                         "property float x\nproperty float y\nproperty float z\nproperty int stop\n"
+                         "element face 1\nproperty list uchar int vertex_indices\nend_header\n"
+                         "0 0 0 -1\n1 0 0 0\n0 1 0 0\n3 0 1 2\n";
+  const MeshReadResult r = read_ply(path);
+  ASSERT_FALSE(r);
+  EXPECT_NE(r.error->message.find("stop value"), std::string::npos) << r.error->message;
+}
+
 TEST(MeshIo, ReadsAsciiPlyWithQuads) {
   const auto path = temp("ascii.ply");
   std::ofstream(path)
