@@ -11,5 +11,9 @@ mkdir -p "$work/corpus" "$work/artifacts"
 [ -d /dev/shm ] && export TMPDIR="${TMPDIR:-/dev/shm}"
 export ASAN_OPTIONS="${ASAN_OPTIONS:-abort_on_error=1:detect_leaks=1}"
 export UBSAN_OPTIONS="${UBSAN_OPTIONS:-print_stacktrace=1:halt_on_error=1}"
-exec "$fuzzer" -max_total_time="$seconds" -timeout=20 -rss_limit_mb=2048 -max_len=65536 \
+# SONOMESH_FUZZ_CORPUS_ONLY=1 runs every committed seed and regression input once, without
+# mutating: a deterministic gate (CI), where a mutational run's finding would depend on luck.
+budget=(-max_total_time="$seconds")
+[ "${SONOMESH_FUZZ_CORPUS_ONLY:-0}" = 1 ] && budget=(-runs=0)
+exec "$fuzzer" "${budget[@]}" -timeout=20 -rss_limit_mb=2048 -max_len=65536 \
   -print_final_stats=1 -artifact_prefix="$work/artifacts/" "$@" "$work/corpus" "$seeds"
