@@ -17,10 +17,11 @@ namespace fs = std::filesystem;
 
 const fs::path kReal = fs::path(SONOMESH_SHARED_DATA) / "real";
 
-// Reads a real volume, or skips the test when the shared data is not on this machine.
-#define READ_OR_SKIP(var, relative)                                             \
-  const fs::path var##_path = kReal / (relative);                               \
-  if (!fs::exists(var##_path)) GTEST_SKIP() << var##_path << " is not present"; \
+// Reads a real volume. CI keeps shared/ beside the checkout: a missing file is a failure, not a
+// skip (as in tests/volume/real_data_test.cpp).
+#define READ_OR_FAIL(var, relative)                                                 \
+  const fs::path var##_path = kReal / (relative);                                   \
+  if (!fs::exists(var##_path)) FAIL() << "real sample volume missing: " << var##_path; \
   auto var##_read = volume::read_volume(var##_path);                            \
   ASSERT_TRUE(var##_read) << var##_read.error->message;                         \
   const volume::Volume& var = var##_read.volume
@@ -41,7 +42,7 @@ std::string reasons(const PipelineResult& r) {
 
 // The coarse Philips volume: the LV cavity, closed, genus 0, a plausible volume, no warning.
 TEST(RealDataPipeline, CoarseEchoLeftVentricleIsClosedAndPlausible) {
-  READ_OR_SKIP(input, "echo3d-lv-itksnap-coarse/echo3d_lv_itksnap_f1.nrrd");
+  READ_OR_FAIL(input, "echo3d-lv-itksnap-coarse/echo3d_lv_itksnap_f1.nrrd");
   const Vec3f seed = input.index_to_mm(Vec3f(24, 28, 35));
   const PipelineResult r = run_pipeline(input, seed, PipelineConfig{});
   ASSERT_TRUE(r.ok) << r.error;
@@ -57,7 +58,7 @@ TEST(RealDataPipeline, CoarseEchoLeftVentricleIsClosedAndPlausible) {
 // The tomaat volume at the old one-voxel pre-filter stops on speckle within two voxels of the
 // seed (0.28 mL in a ~50 mL cavity): that result must be flagged, never a clean success.
 TEST(RealDataPipeline, EchoStalledOnSpeckleIsSuspect) {
-  READ_OR_SKIP(input, "echo3d-lv-tomaat/echo3d_lv_tomaat.nrrd");
+  READ_OR_FAIL(input, "echo3d-lv-tomaat/echo3d_lv_tomaat.nrrd");
   const Vec3f seed = input.index_to_mm(Vec3f(118, 94, 111));
   PipelineConfig config;
   config.smooth_sigma_mm = input.spacing_mm().minCoeff();
@@ -73,7 +74,7 @@ TEST(RealDataPipeline, EchoStalledOnSpeckleIsSuspect) {
 // outside the plausible range of this cavity (40-95 mL, SOURCE.md), and its pre-filter follows
 // the measured speckle grain (about two voxels), not one voxel.
 TEST(RealDataPipeline, EchoTomaatIsPlausibleOrFlagged) {
-  READ_OR_SKIP(input, "echo3d-lv-tomaat/echo3d_lv_tomaat.nrrd");
+  READ_OR_FAIL(input, "echo3d-lv-tomaat/echo3d_lv_tomaat.nrrd");
   const Vec3f seed = input.index_to_mm(Vec3f(118, 94, 111));
   PipelineConfig config;
   config.want_labels = false;
@@ -91,7 +92,7 @@ TEST(RealDataPipeline, EchoTomaatIsPlausibleOrFlagged) {
 
 // The spine phantom has no closed target: refused or suspect, never ok.
 TEST(RealDataPipeline, SpineWithoutClosedTargetIsNeverOk) {
-  READ_OR_SKIP(input, "plus-spine-us/SpinePhantomFreehandReconstructed.mha");
+  READ_OR_FAIL(input, "plus-spine-us/SpinePhantomFreehandReconstructed.mha");
   const Vec3f seed = input.index_to_mm(Vec3f(70, 53, 45));
   PipelineConfig config;
   config.want_labels = false;
@@ -103,7 +104,7 @@ TEST(RealDataPipeline, SpineWithoutClosedTargetIsNeverOk) {
 // The spleen in CT is brighter than the fat around it: bright segments it like a cyst, and auto
 // makes (and reports) the same choice.
 TEST(RealDataPipeline, SpleenAsBrightTarget) {
-  READ_OR_SKIP(input, "lidc2-ct/LIDC2.mha");
+  READ_OR_FAIL(input, "lidc2-ct/LIDC2.mha");
   const Vec3f seed = file_index_mm(input, Vec3i(185, 107, 90), true, true);
   EXPECT_EQ(check_seed(input, seed, TargetPolarity::Bright), std::nullopt);
   PipelineConfig config;
