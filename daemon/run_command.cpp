@@ -155,6 +155,63 @@ std::shared_ptr<IgtlServer> start_igtl(const RunConfig& config, LiveRunner& runn
   return igtl;
 }
 
+// Signals are taken synchronously by one thread (sigtimedwait): they are blocked before any
+// thread starts so that every thread inherits the mask and none is interrupted in the middle of
+// I/O.
+sigset_t block_signals() {
+  sigset_t signals;
+  sigemptyset(&signals);
+  sigaddset(&signals, SIGINT);
+  sigaddset(&signals, SIGTERM);
+  sigaddset(&signals, SIGHUP);
+  pthread_sigmask(SIG_BLOCK, &signals, nullptr);
+  ::signal(SIGPIPE, SIG_IGN);  // a client closing its socket is not a reason to die
+  return signals;
+}
+
+// The source opened and the runner built on it; null (the reason printed) when either fails.
+std::unique_ptr<LiveRunner> make_runner(const RunConfig& config, bool& live) {
+  OpenedSource opened = open_run_source(config);
+  if (opened.fatal_error) {
+    std::fprintf(stderr, "sonomeshd run: %s\n", opened.fatal_error->c_str());
+    return nullptr;
+  }
+  live = opened.live;
+  try {
+    return std::make_unique<LiveRunner>(config, std::move(opened.source), std::move(opened.factory),
+                                        opened.live, opened.phantom_seed_mm);
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "sonomeshd run: %s\n", e.what());
+    return nullptr;
+  }
+}
+
+// The HTTP status server, unless "off". An address that cannot be bound is fatal (false) when
+// it was asked for, else the daemon runs without it.
+bool start_http(const RunConfig& config, LiveRunner& runner, LiveExtras& extras,
+                std::unique_ptr<HttpStatusServer>& http) {
+  if (config.http_address == "off") return true;
+  const HttpAddress address = *parse_http_address(config.http_address);
+  http = std::make_unique<HttpStatusServer>(
+      runner.stats(), config.out / "latest.ply",
+      [&runner](const std::array<float, 3>& seed) { return runner.set_seed(seed); });
+  http->set_web(extras.web());
+  try {
+    const int port = http->start(address);
+    spdlog::info("HTTP status on http://{}:{}/status, live page http://{}:{}/", address.host, port,
+                 address.host, port);
+    runner.event("http_listening", {{"host", address.host}, {"port", port}});
+  } catch (const std::exception& e) {
+    http.reset();
+    if (config.http_explicit) {
+      std::fprintf(stderr, "sonomeshd run: %s\n", e.what());
+      return false;
+    }
+    spdlog::warn("{}; running without the HTTP status server", e.what());
+  }
+  return true;
+}
+
 int run_daemon(const RunFlags& flags) {
   RunConfig config;
   if (auto err = effective_config(flags, config)) {
@@ -166,71 +223,26 @@ int run_daemon(const RunFlags& flags) {
     return 0;
   }
   if (!spdlog::get("sonomeshd")) setup_logging(config.log_level);
-
-  // Signals are taken synchronously by one thread (sigtimedwait): block them before any thread
-  // starts so that every thread inherits the mask and none is interrupted in the middle of I/O.
-  sigset_t signals;
-  sigemptyset(&signals);
-  sigaddset(&signals, SIGINT);
-  sigaddset(&signals, SIGTERM);
-  sigaddset(&signals, SIGHUP);
-  pthread_sigmask(SIG_BLOCK, &signals, nullptr);
-  ::signal(SIGPIPE, SIG_IGN);  // a client closing its socket is not a reason to die
-
-  OpenedSource opened = open_run_source(config);
-  if (opened.fatal_error) {
-    std::fprintf(stderr, "sonomeshd run: %s\n", opened.fatal_error->c_str());
-    return 1;
-  }
-
-  std::unique_ptr<LiveRunner> runner;
-  try {
-    runner =
-        std::make_unique<LiveRunner>(config, std::move(opened.source), std::move(opened.factory),
-                                     opened.live, opened.phantom_seed_mm);
-  } catch (const std::exception& e) {
-    std::fprintf(stderr, "sonomeshd run: %s\n", e.what());
-    return 1;
-  }
-
+  const sigset_t signals = block_signals();
+  bool live = false;
+  const std::unique_ptr<LiveRunner> runner = make_runner(config, live);
+  if (!runner) return 1;
   std::shared_ptr<IgtlServer> igtl;
   if (!config.igtl_listen.empty()) {
     igtl = start_igtl(config, *runner);
     if (!igtl) return 1;
   }
-
   // web (issue 18): the live page's event stream and slices, systemd's notify protocol.
   LiveExtras extras(config.out, runner->stats());
   runner->set_worker_turn_hook(extras.worker_turn_hook());
   runner->add_sink(extras.slice_sink());
   extras.start();
-
   std::unique_ptr<HttpStatusServer> http;
-  if (config.http_address != "off") {
-    const HttpAddress address = *parse_http_address(config.http_address);
-    http = std::make_unique<HttpStatusServer>(
-        runner->stats(), config.out / "latest.ply",
-        [&runner](const std::array<float, 3>& seed) { return runner->set_seed(seed); });
-    http->set_web(extras.web());
-    try {
-      const int port = http->start(address);
-      spdlog::info("HTTP status on http://{}:{}/status, live page http://{}:{}/", address.host,
-                   port, address.host, port);
-      runner->event("http_listening", {{"host", address.host}, {"port", port}});
-    } catch (const std::exception& e) {
-      http.reset();
-      if (config.http_explicit) {
-        std::fprintf(stderr, "sonomeshd run: %s\n", e.what());
-        return 1;
-      }
-      spdlog::warn("{}; running without the HTTP status server", e.what());
-    }
-  }
+  if (!start_http(config, *runner, extras, http)) return 1;
 
   extras.serving(true);  // web: READY=1 once the source is open too
   spdlog::info("sonomeshd run: source {} ({}), out {}", config.source,
-               opened.live ? "live: newest volume wins" : "replay: every volume",
-               config.out.string());
+               live ? "live: newest volume wins" : "replay: every volume", config.out.string());
   std::atomic<bool> done{false};
   std::thread signal_thread([&] { take_signals(signals, flags, *runner, extras, done); });
   const int rc = runner->run();

@@ -210,94 +210,95 @@ nlohmann::json RunStats::status_json() const {
   return j;
 }
 
+namespace {
+// The "# HELP" and "# TYPE" lines of one metric.
+void describe(std::ostream& out, const std::string& name, const char* type,
+              const std::string& help) {
+  out << "# HELP " << name << ' ' << help << "\n# TYPE " << name << ' ' << type << "\n";
+}
+}  // namespace
+
 std::string RunStats::prometheus_text() const {
   std::lock_guard lock(mutex_);
   std::ostringstream out;
+  prom_counts(out);
+  prom_latency(out);
+  prom_state(out);
+  return out.str();
+}
+
+void RunStats::prom_counts(std::ostream& out) const {
   // *_info: constant 1 with the facts as labels (Prometheus naming conventions).
-  out << "# HELP sonomesh_build_info The running sonomeshd's version.\n"
-      << "# TYPE sonomesh_build_info gauge\n"
-      << "sonomesh_build_info{version=\"" << prom_label(SONOMESH_VERSION) << "\"} 1\n"
-      << "# HELP sonomesh_source_info The probe source this daemon reads.\n"
-      << "# TYPE sonomesh_source_info gauge\n"
-      << "sonomesh_source_info{uri=\"" << prom_label(source_) << "\",live=\""
+  describe(out, "sonomesh_build_info", "gauge", "The running sonomeshd's version.");
+  out << "sonomesh_build_info{version=\"" << prom_label(SONOMESH_VERSION) << "\"} 1\n";
+  describe(out, "sonomesh_source_info", "gauge", "The probe source this daemon reads.");
+  out << "sonomesh_source_info{uri=\"" << prom_label(source_) << "\",live=\""
       << (live_ ? "true" : "false") << "\"} 1\n";
-  out << "# HELP sonomesh_volumes_total Volumes by journal status (one per sequence number).\n"
-      << "# TYPE sonomesh_volumes_total counter\n";
+  describe(out, "sonomesh_volumes_total", "counter",
+           "Volumes by journal status (one per sequence number).");
   for (JournalStatus s : kStatuses) {
     const auto it = counters_.find(s);
     out << "sonomesh_volumes_total{status=\"" << to_string(s) << "\"} "
         << (it == counters_.end() ? 0 : it->second) << "\n";
   }
-
-  out << "# HELP sonomesh_results_total Processed volumes by quality verdict.\n"
-      << "# TYPE sonomesh_results_total counter\n"
-      << "sonomesh_results_total{quality=\"ok\"} " << quality_ok_ << "\n"
-      << "sonomesh_results_total{quality=\"suspect\"} " << quality_suspect_ << "\n"
-      << "# HELP sonomesh_suspect_reasons_total Suspect results by reason (one may have several).\n"
-      << "# TYPE sonomesh_suspect_reasons_total counter\n";
-  for (const auto& [reason, n] : suspect_reasons_) {
+  describe(out, "sonomesh_results_total", "counter", "Processed volumes by quality verdict.");
+  out << "sonomesh_results_total{quality=\"ok\"} " << quality_ok_ << "\n"
+      << "sonomesh_results_total{quality=\"suspect\"} " << quality_suspect_ << "\n";
+  describe(out, "sonomesh_suspect_reasons_total", "counter",
+           "Suspect results by reason (one may have several).");
+  for (const auto& [reason, n] : suspect_reasons_)
     out << "sonomesh_suspect_reasons_total{reason=\"" << prom_label(reason) << "\"} " << n << "\n";
-  }
+}
 
-  out << "# HELP sonomesh_latency_seconds Received-to-mesh-written latency over the last "
-      << kLatencyWindow << " meshes.\n"
-      << "# TYPE sonomesh_latency_seconds summary\n";
+void RunStats::prom_latency(std::ostream& out) const {
+  describe(out, "sonomesh_latency_seconds", "summary",
+           "Received-to-mesh-written latency over the last " + std::to_string(kLatencyWindow) +
+               " meshes.");
   if (!recent_latency_ms_.empty()) {
     std::vector<double> v(recent_latency_ms_.begin(), recent_latency_ms_.end());
-    for (double q : {0.5, 0.95, 0.99}) {
+    for (double q : {0.5, 0.95, 0.99})
       out << "sonomesh_latency_seconds{quantile=\"" << prom_number(q) << "\"} "
           << prom_number(quantile_of(v, q) / 1000.0) << "\n";
-    }
   }
   out << "sonomesh_latency_seconds_sum " << prom_number(latency_sum_s_) << "\n"
       << "sonomesh_latency_seconds_count " << latency_count_ << "\n";
-
-  out << "# HELP sonomesh_latency_histogram_seconds Received-to-mesh-written latency.\n"
-      << "# TYPE sonomesh_latency_histogram_seconds histogram\n";
-  for (std::size_t i = 0; i < kLatencyBuckets.size(); ++i) {
+  describe(out, "sonomesh_latency_histogram_seconds", "histogram",
+           "Received-to-mesh-written latency.");
+  for (std::size_t i = 0; i < kLatencyBuckets.size(); ++i)
     out << "sonomesh_latency_histogram_seconds_bucket{le=\"" << prom_number(kLatencyBuckets[i])
         << "\"} " << bucket_counts_[i] << "\n";
-  }
   out << "sonomesh_latency_histogram_seconds_bucket{le=\"+Inf\"} " << latency_count_ << "\n"
       << "sonomesh_latency_histogram_seconds_sum " << prom_number(latency_sum_s_) << "\n"
       << "sonomesh_latency_histogram_seconds_count " << latency_count_ << "\n";
+}
 
-  out << "# HELP sonomesh_stage_seconds_total Time spent per pipeline stage.\n"
-      << "# TYPE sonomesh_stage_seconds_total counter\n";
-  for (const auto& [stage, ms] : stage_sum_ms_) {
+void RunStats::prom_state(std::ostream& out) const {
+  describe(out, "sonomesh_stage_seconds_total", "counter", "Time spent per pipeline stage.");
+  for (const auto& [stage, ms] : stage_sum_ms_)
     out << "sonomesh_stage_seconds_total{stage=\"" << stage << "\"} " << prom_number(ms / 1000.0)
         << "\n";
-  }
-
-  out << "# HELP sonomesh_queue_depth Volumes waiting for the worker.\n"
-      << "# TYPE sonomesh_queue_depth gauge\n"
-      << "sonomesh_queue_depth " << queue_depth_ << "\n"
-      << "# HELP sonomesh_queue_capacity Capacity of the queue.\n"
-      << "# TYPE sonomesh_queue_capacity gauge\n"
-      << "sonomesh_queue_capacity " << queue_capacity_ << "\n"
-      << "# HELP sonomesh_source_connected 1 while the probe source is connected.\n"
-      << "# TYPE sonomesh_source_connected gauge\n"
-      << "sonomesh_source_connected " << (source_state_ == SourceState::Connected ? 1 : 0) << "\n"
-      << "# HELP sonomesh_source_outages_total Times the source was lost.\n"
-      << "# TYPE sonomesh_source_outages_total counter\n"
-      << "sonomesh_source_outages_total " << outages_ << "\n";
+  describe(out, "sonomesh_queue_depth", "gauge", "Volumes waiting for the worker.");
+  out << "sonomesh_queue_depth " << queue_depth_ << "\n";
+  describe(out, "sonomesh_queue_capacity", "gauge", "Capacity of the queue.");
+  out << "sonomesh_queue_capacity " << queue_capacity_ << "\n";
+  describe(out, "sonomesh_source_connected", "gauge", "1 while the probe source is connected.");
+  out << "sonomesh_source_connected " << (source_state_ == SourceState::Connected ? 1 : 0) << "\n";
+  describe(out, "sonomesh_source_outages_total", "counter", "Times the source was lost.");
+  out << "sonomesh_source_outages_total " << outages_ << "\n";
   if (igtl_enabled_) {
-    out << "# HELP sonomesh_igtl_clients OpenIGTLink clients connected.\n"
-        << "# TYPE sonomesh_igtl_clients gauge\n"
-        << "sonomesh_igtl_clients " << igtl_clients_ << "\n"
-        << "# HELP sonomesh_igtl_results_total OpenIGTLink result sets by outcome (dropped: a "
-           "slow client had newer ones waiting).\n"
-        << "# TYPE sonomesh_igtl_results_total counter\n"
-        << "sonomesh_igtl_results_total{outcome=\"sent\"} " << igtl_sent_ << "\n"
+    describe(out, "sonomesh_igtl_clients", "gauge", "OpenIGTLink clients connected.");
+    out << "sonomesh_igtl_clients " << igtl_clients_ << "\n";
+    describe(out, "sonomesh_igtl_results_total", "counter",
+             "OpenIGTLink result sets by outcome (dropped: a slow client had newer ones "
+             "waiting).");
+    out << "sonomesh_igtl_results_total{outcome=\"sent\"} " << igtl_sent_ << "\n"
         << "sonomesh_igtl_results_total{outcome=\"dropped\"} " << igtl_dropped_ << "\n";
   }
-  out << "# HELP sonomesh_uptime_seconds Seconds since the daemon started.\n"
-      << "# TYPE sonomesh_uptime_seconds gauge\n"
-      << "sonomesh_uptime_seconds "
-      << prom_number(std::chrono::duration<double>(std::chrono::steady_clock::now() - started_)
-                         .count())
+  describe(out, "sonomesh_uptime_seconds", "gauge", "Seconds since the daemon started.");
+  out << "sonomesh_uptime_seconds "
+      << prom_number(
+             std::chrono::duration<double>(std::chrono::steady_clock::now() - started_).count())
       << "\n";
-  return out.str();
 }
 
 }  // namespace sonomesh::daemon

@@ -6,6 +6,7 @@
 #include <chrono>
 #include <cstdint>
 #include <deque>
+#include <iosfwd>
 #include <map>
 #include <mutex>
 #include <optional>
@@ -60,6 +61,11 @@ class RunStats {
   std::string prometheus_text() const;
 
  private:
+  // prometheus_text's parts, called with mutex_ held.
+  void prom_counts(std::ostream& out) const;
+  void prom_latency(std::ostream& out) const;
+  void prom_state(std::ostream& out) const;
+
   mutable std::mutex mutex_;
   std::chrono::steady_clock::time_point started_;
   std::string source_;

@@ -165,6 +165,173 @@ class Source {
   bool ascii_;
 };
 
+// A reader failure before the path is attached.
+struct Failure {
+  MeshIoError::Code code;
+  std::string what;
+};
+using Failed = std::optional<Failure>;
+
+Failed bad_header(const std::string& what) { return Failure{MeshIoError::Code::BadHeader, what}; }
+
+// One `property` line (after the word), appended to the current element.
+Failed parse_property(std::istringstream& ls, const std::string& line, Element& element) {
+  Property p;
+  std::string t;
+  ls >> t;
+  if (t == "list") {
+    std::string ct, it;
+    ls >> ct >> it >> p.name;
+    const auto c = parse_type(ct), i = parse_type(it);
+    if (!c || !i) return bad_header("bad list property: " + line);
+    p.is_list = true;
+    p.count_type = *c;
+    p.type = *i;
+  } else {
+    const auto ty = parse_type(t);
+    ls >> p.name;
+    if (!ty) return bad_header("bad property type: " + line);
+    p.type = *ty;
+  }
+  element.properties.push_back(p);
+  return std::nullopt;
+}
+
+// One header line other than end_header; sets ascii and have_format from the format line.
+Failed parse_header_line(const std::string& line, bool& ascii, bool& have_format,
+                         std::vector<Element>& elements) {
+  std::istringstream ls(line);
+  std::string word;
+  ls >> word;
+  if (word == "comment" || word == "obj_info" || word.empty()) return std::nullopt;
+  if (word == "format") {
+    std::string fmt;
+    ls >> fmt;
+    if (fmt == "ascii")
+      ascii = true;
+    else if (fmt != "binary_little_endian")
+      return Failure{MeshIoError::Code::Unsupported, "format '" + fmt + "' not supported"};
+    have_format = true;
+  } else if (word == "element") {
+    Element e;
+    long long count = -1;
+    ls >> e.name >> count;
+    if (!ls || count < 0) return bad_header("bad element line: " + line);
+    e.count = static_cast<std::size_t>(count);
+    elements.push_back(e);
+  } else if (word == "property") {
+    if (elements.empty()) return bad_header("property before element");
+    return parse_property(ls, line, elements.back());
+  } else {
+    return bad_header("unknown header line: " + line);
+  }
+  return std::nullopt;
+}
+
+// The header after the "ply" line, up to and including end_header.
+Failed read_header(std::istream& in, bool& ascii, std::vector<Element>& elements) {
+  bool have_format = false;
+  std::string line;
+  for (;;) {
+    if (!std::getline(in, line))
+      return Failure{MeshIoError::Code::Truncated, "header ends before end_header"};
+    if (!line.empty() && line.back() == '\r') line.pop_back();
+    std::istringstream ls(line);
+    std::string word;
+    ls >> word;
+    if (word == "end_header") break;
+    if (Failed f = parse_header_line(line, ascii, have_format, elements)) return f;
+  }
+  if (!have_format) return bad_header("no format line");
+  return std::nullopt;
+}
+
+// Which property of an element is which (-1: absent).
+struct Columns {
+  int x = -1, y = -1, z = -1, stop = -1, indices = -1;
+};
+
+Columns columns(const Element& e) {
+  Columns c;
+  for (int p = 0; p < static_cast<int>(e.properties.size()); ++p) {
+    const auto& n = e.properties[p].name;
+    if (n == "x") c.x = p;
+    if (n == "y") c.y = p;
+    if (n == "z") c.z = p;
+    if (n == "stop") c.stop = p;
+    if ((n == "vertex_indices" || n == "vertex_index") && e.properties[p].is_list) c.indices = p;
+  }
+  return c;
+}
+
+// One list property of item n; a face's vertex indices become triangles (polygons as fans).
+Failed read_list(Source& src, const Property& prop, const Element& e, std::size_t n, bool indices,
+                 std::vector<double>& list, Mesh& mesh) {
+  double value = 0.0;
+  if (!src.read(prop.count_type, &value) || value < 0 || value > 1e6)
+    return Failure{MeshIoError::Code::Truncated, "truncated or bad list in element " + e.name};
+  list.resize(static_cast<std::size_t>(value));
+  for (auto& x : list)
+    if (!src.read(prop.type, &x))
+      return Failure{MeshIoError::Code::Truncated, "truncated list in element " + e.name};
+  if (!indices) return std::nullopt;
+  for (double x : list)
+    if (x < 0 || x >= double(mesh.vertices.size()))
+      return Failure{MeshIoError::Code::BadIndex,
+                     "face " + std::to_string(n) + " indexes a missing vertex"};
+  for (std::size_t k = 1; k + 1 < list.size(); ++k)
+    mesh.triangles.push_back(
+        {std::uint32_t(list[0]), std::uint32_t(list[k]), std::uint32_t(list[k + 1])});
+  return std::nullopt;
+}
+
+// Property p of vertex n. A stop reason is a small code; anything else is not a balloon file's
+// (found by fuzz_ply: the cast of an out-of-range value is undefined).
+Failed store_vertex_value(const Columns& c, int p, std::size_t n, double value, MeshReadResult& r) {
+  if (p == c.x) r.mesh.vertices[n].x() = float(value);
+  if (p == c.y) r.mesh.vertices[n].y() = float(value);
+  if (p == c.z) r.mesh.vertices[n].z() = float(value);
+  if (p == c.stop) {
+    if (!(value >= 0 && value <= 255 && value == std::floor(value)))
+      return bad_header("vertex " + std::to_string(n) + " has stop value " + std::to_string(value) +
+                        ", not a stop reason code");
+    r.stop[n] = static_cast<std::uint8_t>(value);
+  }
+  return std::nullopt;
+}
+
+// The items of one element; vertices and faces are kept, other elements are read past.
+Failed read_element(Source& src, const Element& e, MeshReadResult& r, bool& have_vertices,
+                    bool& have_faces) {
+  const bool is_vertex = e.name == "vertex", is_face = e.name == "face";
+  const Columns c = columns(e);
+  if (is_vertex) {
+    if (c.x < 0 || c.y < 0 || c.z < 0) return bad_header("vertex element lacks x, y or z");
+    r.mesh.vertices.resize(e.count);
+    if (c.stop >= 0) r.stop.resize(e.count);
+    have_vertices = true;
+  }
+  if (is_face) {
+    if (c.indices < 0) return bad_header("face element lacks vertex_indices");
+    have_faces = true;
+  }
+  std::vector<double> list;
+  for (std::size_t n = 0; n < e.count; ++n)
+    for (int p = 0; p < static_cast<int>(e.properties.size()); ++p) {
+      const Property& prop = e.properties[p];
+      Failed f;
+      double value = 0.0;
+      if (prop.is_list)
+        f = read_list(src, prop, e, n, is_face && p == c.indices, list, r.mesh);
+      else if (!src.read(prop.type, &value))
+        f = Failure{MeshIoError::Code::Truncated, "truncated element " + e.name};
+      else if (is_vertex)
+        f = store_vertex_value(c, p, n, value, r);
+      if (f) return f;
+    }
+  return std::nullopt;
+}
+
 }  // namespace
 
 std::optional<MeshIoError> write_ply(const Mesh& mesh, const std::filesystem::path& path) {
@@ -232,123 +399,14 @@ MeshReadResult read_ply(const std::filesystem::path& path) {
   std::string line;
   if (!std::getline(in, line) || line != "ply")
     return fail(MeshIoError::Code::BadHeader, "not a PLY file");
-  bool ascii = false, have_format = false;
+  bool ascii = false;
   std::vector<Element> elements;
-  for (;;) {
-    if (!std::getline(in, line))
-      return fail(MeshIoError::Code::Truncated, "header ends before end_header");
-    if (!line.empty() && line.back() == '\r') line.pop_back();
-    std::istringstream ls(line);
-    std::string word;
-    ls >> word;
-    if (word == "end_header") break;
-    if (word == "comment" || word == "obj_info" || word.empty()) continue;
-    if (word == "format") {
-      std::string fmt;
-      ls >> fmt;
-      if (fmt == "ascii")
-        ascii = true;
-      else if (fmt != "binary_little_endian")
-        return fail(MeshIoError::Code::Unsupported, "format '" + fmt + "' not supported");
-      have_format = true;
-    } else if (word == "element") {
-      Element e;
-      long long count = -1;
-      ls >> e.name >> count;
-      if (!ls || count < 0) return fail(MeshIoError::Code::BadHeader, "bad element line: " + line);
-      e.count = static_cast<std::size_t>(count);
-      elements.push_back(e);
-    } else if (word == "property") {
-      if (elements.empty()) return fail(MeshIoError::Code::BadHeader, "property before element");
-      Property p;
-      std::string t;
-      ls >> t;
-      if (t == "list") {
-        std::string ct, it;
-        ls >> ct >> it >> p.name;
-        const auto c = parse_type(ct), i = parse_type(it);
-        if (!c || !i) return fail(MeshIoError::Code::BadHeader, "bad list property: " + line);
-        p.is_list = true;
-        p.count_type = *c;
-        p.type = *i;
-      } else {
-        const auto ty = parse_type(t);
-        ls >> p.name;
-        if (!ty) return fail(MeshIoError::Code::BadHeader, "bad property type: " + line);
-        p.type = *ty;
-      }
-      elements.back().properties.push_back(p);
-    } else {
-      return fail(MeshIoError::Code::BadHeader, "unknown header line: " + line);
-    }
-  }
-  if (!have_format) return fail(MeshIoError::Code::BadHeader, "no format line");
+  if (Failed f = read_header(in, ascii, elements)) return fail(f->code, f->what);
   Source src(in, ascii);
   bool have_vertices = false, have_faces = false;
-  for (const Element& e : elements) {
-    const bool is_vertex = e.name == "vertex", is_face = e.name == "face";
-    int ix = -1, iy = -1, iz = -1, istop = -1, iidx = -1;
-    for (int p = 0; p < static_cast<int>(e.properties.size()); ++p) {
-      const auto& n = e.properties[p].name;
-      if (n == "x") ix = p;
-      if (n == "y") iy = p;
-      if (n == "z") iz = p;
-      if (n == "stop") istop = p;
-      if ((n == "vertex_indices" || n == "vertex_index") && e.properties[p].is_list) iidx = p;
-    }
-    if (is_vertex) {
-      if (ix < 0 || iy < 0 || iz < 0)
-        return fail(MeshIoError::Code::BadHeader, "vertex element lacks x, y or z");
-      r.mesh.vertices.resize(e.count);
-      if (istop >= 0) r.stop.resize(e.count);
-      have_vertices = true;
-    }
-    if (is_face) {
-      if (iidx < 0) return fail(MeshIoError::Code::BadHeader, "face element lacks vertex_indices");
-      have_faces = true;
-    }
-    std::vector<double> list;
-    for (std::size_t n = 0; n < e.count; ++n) {
-      for (int p = 0; p < static_cast<int>(e.properties.size()); ++p) {
-        const Property& prop = e.properties[p];
-        double value = 0.0;
-        if (prop.is_list) {
-          if (!src.read(prop.count_type, &value) || value < 0 || value > 1e6)
-            return fail(MeshIoError::Code::Truncated, "truncated or bad list in element " + e.name);
-          list.resize(static_cast<std::size_t>(value));
-          for (auto& x : list)
-            if (!src.read(prop.type, &x))
-              return fail(MeshIoError::Code::Truncated, "truncated list in element " + e.name);
-          if (is_face && p == iidx) {
-            for (double x : list)
-              if (x < 0 || x >= double(r.mesh.vertices.size()))
-                return fail(MeshIoError::Code::BadIndex,
-                            "face " + std::to_string(n) + " indexes a missing vertex");
-            for (std::size_t k = 1; k + 1 < list.size(); ++k)  // polygons as fans
-              r.mesh.triangles.push_back(
-                  {std::uint32_t(list[0]), std::uint32_t(list[k]), std::uint32_t(list[k + 1])});
-          }
-          continue;
-        }
-        if (!src.read(prop.type, &value))
-          return fail(MeshIoError::Code::Truncated, "truncated element " + e.name);
-        if (is_vertex) {
-          if (p == ix) r.mesh.vertices[n].x() = float(value);
-          if (p == iy) r.mesh.vertices[n].y() = float(value);
-          if (p == iz) r.mesh.vertices[n].z() = float(value);
-          if (p == istop) {
-            // A stop reason is a small code; anything else is not a balloon file's (found by
-            // fuzz_ply: the cast of an out-of-range value is undefined).
-            if (!(value >= 0 && value <= 255 && value == std::floor(value)))
-              return fail(MeshIoError::Code::BadHeader,
-                          "vertex " + std::to_string(n) + " has stop value " +
-                              std::to_string(value) + ", not a stop reason code");
-            r.stop[n] = static_cast<std::uint8_t>(value);
-          }
-        }
-      }
-    }
-  }
+  for (const Element& e : elements)
+    if (Failed f = read_element(src, e, r, have_vertices, have_faces))
+      return fail(f->code, f->what);
   if (!have_vertices || !have_faces)
     return fail(MeshIoError::Code::BadHeader, "needs vertex and face elements");
   return r;

@@ -190,63 +190,31 @@ const Tables& tables() {
   return t;
 }
 
-}  // namespace
-
-Mesh marching_cubes(const volume::Volume& field, float iso) {
-  if (field.type() != volume::VoxelType::Float32)
-    throw std::invalid_argument("marching_cubes: field must be a Float32 volume");
-  const auto dims = field.dims();
-  if ((dims.array() < 2).any())
-    throw std::invalid_argument("marching_cubes: field needs at least 2 samples per axis");
-  const Tables& tab = tables();
-  const int nx = dims.x(), ny = dims.y(), nz = dims.z();
-  const std::size_t sx = 1, sy = static_cast<std::size_t>(nx), sz = sy * ny;
-  const std::size_t n_points = sz * nz;
-  const float* f = field.f32().data();
-  // Thread start-up costs more than a small grid's whole run.
-  const int threads = n_points < (1u << 15) ? 1 : mesh::default_threads();
+// The field as marching cubes reads it: values relative to iso, inside flags, and per x-row
+// whether the row is all outside (0), all inside (1) or mixed (2), so whole rows far from the
+// surface are skipped.
+struct McField {
+  int nx = 0, ny = 0, nz = 0;
+  std::size_t sy = 0, sz = 0, n_points = 0;
+  const float* f = nullptr;
+  float iso = 0;
+  std::vector<std::uint8_t> inside, row_state;
 
   // Border samples count as outside (value pushed just below iso) so every surface closes.
-  auto value = [&](int i, int j, int k) -> float {
-    const float v = f[i * sx + j * sy + k * sz] - iso;
+  float value(int i, int j, int k) const {
+    const float v = f[i + j * sy + k * sz] - iso;
     const bool border = i == 0 || j == 0 || k == 0 || i == nx - 1 || j == ny - 1 || k == nz - 1;
     return border ? std::min(v, -1e-30f) : v;
-  };
-
-  // Inside flags, and per x-row whether the row is all outside (0), all inside (1) or mixed (2):
-  // most of the padded grid is far from the surface, and whole rows are skipped below.
-  std::vector<std::uint8_t> inside(n_points), row_state(std::size_t(ny) * nz);
-  mesh::parallel_chunks(0, nz, threads, [&](int k0, int k1, int) {
-    for (int k = k0; k < k1; ++k)
-      for (int j = 0; j < ny; ++j) {
-        std::uint8_t* row = &inside[j * sy + k * sz];
-        const float* frow = f + j * sy + k * sz;
-        int count = 0;
-        if (j == 0 || k == 0 || j == ny - 1 || k == nz - 1) {
-          std::fill(row, row + nx, std::uint8_t{0});  // border rows are outside
-        } else {
-          // Plain compare loop (vectorises); the two border samples of the row are outside.
-          for (int i = 1; i + 1 < nx; ++i) row[i] = frow[i] > iso;
-          row[0] = row[nx - 1] = 0;
-          for (int i = 1; i + 1 < nx; ++i) count += row[i];
-        }
-        row_state[j + std::size_t(ny) * k] = count == 0 ? 0 : (count == nx ? 1 : 2);
-      }
-  });
-  auto state = [&](int j, int k) { return row_state[j + std::size_t(ny) * k]; };
+  }
+  int state(int j, int k) const { return row_state[j + std::size_t(ny) * k]; }
   // Can the edges between row (j, k) and row (j2, k2) cross the surface?
-  auto rows_differ = [&](int j, int k, int j2, int k2) {
+  bool rows_differ(int j, int k, int j2, int k2) const {
     const int a = state(j, k), b = state(j2, k2);
     return a == 2 || b == 2 || a != b;
-  };
-
-  // One vertex per crossed grid edge, numbered layer by layer so the threads need no locking.
-  // The index array is left uninitialised: only entries of crossed edges are ever read.
-  std::unique_ptr<std::int32_t[]> edge_vertex(new std::int32_t[3 * n_points]);
-  std::vector<int> layer_count(nz, 0);
-  const std::size_t step[3] = {sx, sy, sz};
+  }
   // Visits the crossed edges leaving the points of row (j, k): fn(i, axis).
-  auto for_crossed_edges = [&](int j, int k, auto&& fn) {
+  template <class Fn>
+  void for_crossed_edges(int j, int k, Fn&& fn) const {
     const std::uint8_t* row = &inside[j * sy + k * sz];
     if (state(j, k) == 2)
       for (int i = 0; i + 1 < nx; ++i)
@@ -257,101 +225,144 @@ Mesh marching_cubes(const volume::Volume& field, float iso) {
     if (k + 1 < nz && rows_differ(j, k, j, k + 1))
       for (int i = 0; i < nx; ++i)
         if (row[i] != row[i + sz]) fn(i, 2);
-  };
-  mesh::parallel_chunks(0, nz, threads, [&](int k0, int k1, int) {
+  }
+};
+
+void classify(McField& g, int threads) {
+  g.inside.resize(g.n_points);
+  g.row_state.resize(std::size_t(g.ny) * g.nz);
+  mesh::parallel_chunks(0, g.nz, threads, [&](int k0, int k1, int) {
+    for (int k = k0; k < k1; ++k)
+      for (int j = 0; j < g.ny; ++j) {
+        std::uint8_t* row = &g.inside[j * g.sy + k * g.sz];
+        const float* frow = g.f + j * g.sy + k * g.sz;
+        int count = 0;
+        if (j == 0 || k == 0 || j == g.ny - 1 || k == g.nz - 1) {
+          std::fill(row, row + g.nx, std::uint8_t{0});  // border rows are outside
+        } else {
+          // Plain compare loop (vectorises); the two border samples of the row are outside.
+          for (int i = 1; i + 1 < g.nx; ++i) row[i] = frow[i] > g.iso;
+          row[0] = row[g.nx - 1] = 0;
+          for (int i = 1; i + 1 < g.nx; ++i) count += row[i];
+        }
+        g.row_state[j + std::size_t(g.ny) * k] = count == 0 ? 0 : (count == g.nx ? 1 : 2);
+      }
+  });
+}
+
+// One vertex per crossed grid edge, numbered layer by layer so the threads need no locking.
+// Returns the edge -> vertex index, left uninitialised: only crossed edges are ever read.
+std::unique_ptr<std::int32_t[]> place_vertices(const McField& g, const volume::Volume& field,
+                                               int threads, Mesh& mesh) {
+  std::unique_ptr<std::int32_t[]> edge_vertex(new std::int32_t[3 * g.n_points]);
+  std::vector<int> layer_count(g.nz, 0);
+  mesh::parallel_chunks(0, g.nz, threads, [&](int k0, int k1, int) {
     for (int k = k0; k < k1; ++k) {
       int count = 0;
-      for (int j = 0; j < ny; ++j) for_crossed_edges(j, k, [&](int, int) { ++count; });
+      for (int j = 0; j < g.ny; ++j) g.for_crossed_edges(j, k, [&](int, int) { ++count; });
       layer_count[k] = count;
     }
   });
-  std::vector<int> layer_offset(nz + 1, 0);
-  for (int k = 0; k < nz; ++k) layer_offset[k + 1] = layer_offset[k] + layer_count[k];
-  Mesh mesh;
-  mesh.vertices.resize(layer_offset[nz]);
+  std::vector<int> layer_offset(g.nz + 1, 0);
+  for (int k = 0; k < g.nz; ++k) layer_offset[k + 1] = layer_offset[k] + layer_count[k];
+  mesh.vertices.resize(layer_offset[g.nz]);
   const Vec3f spacing = field.spacing_mm(), origin = field.origin_mm();
-  mesh::parallel_chunks(0, nz, threads, [&](int k0, int k1, int) {
+  mesh::parallel_chunks(0, g.nz, threads, [&](int k0, int k1, int) {
     for (int k = k0; k < k1; ++k) {
       int index = layer_offset[k];
-      for (int j = 0; j < ny; ++j)
-        for_crossed_edges(j, k, [&](int i, int a) {
-          const float f0 = value(i, j, k);
-          const float f1 = value(i + (a == 0), j + (a == 1), k + (a == 2));
+      for (int j = 0; j < g.ny; ++j)
+        g.for_crossed_edges(j, k, [&](int i, int a) {
+          const float f0 = g.value(i, j, k);
+          const float f1 = g.value(i + (a == 0), j + (a == 1), k + (a == 2));
           float t = f0 / (f0 - f1);
           t = std::isfinite(t) ? std::clamp(t, 0.0f, 1.0f) : 0.5f;
           Vec3f ijk{float(i), float(j), float(k)};
           ijk[a] += t;
           mesh.vertices[index] = origin + spacing.cwiseProduct(ijk);
-          edge_vertex[3 * (i + j * sy + k * sz) + a] = index++;
+          edge_vertex[3 * (i + j * g.sy + k * g.sz) + a] = index++;
         });
     }
   });
+  return edge_vertex;
+}
 
-  // Cells: one triangle list per thread; centre vertices are numbered after all edge vertices.
-  struct Local {
-    std::vector<std::array<std::uint32_t, 3>> triangles;
-    std::vector<Vec3f> centres;
-  };
-  constexpr std::uint32_t kCentreTag = 0x80000000u;
-  std::vector<Local> locals(threads);
-  mesh::parallel_chunks(0, nz - 1, threads, [&](int k0, int k1, int t) {
-    Local& out = locals[t];
-    std::uint32_t vid[16];
-    for (int k = k0; k < k1; ++k)
-      for (int j = 0; j + 1 < ny; ++j) {
-        const int s0 = state(j, k);
-        if (s0 != 2 && s0 == state(j + 1, k) && s0 == state(j, k + 1) && s0 == state(j + 1, k + 1))
-          continue;  // the four rows around this row of cells agree everywhere: no surface
-        // Corner c = cx + 2 cy + 4 cz: the four rows give bits 0, 2, 4, 6 at x and 1, 3, 5, 7 at x
-        // + 1.
-        const std::uint8_t* r00 = &inside[j * sy + k * sz];
-        const std::uint8_t* r10 = r00 + sy;
-        const std::uint8_t* r01 = r00 + sz;
-        const std::uint8_t* r11 = r00 + sy + sz;
-        int column = r00[0] | r10[0] << 2 | r01[0] << 4 | r11[0] << 6;
-        for (int i = 0; i + 1 < nx; ++i) {
-          const int next = r00[i + 1] | r10[i + 1] << 2 | r01[i + 1] << 4 | r11[i + 1] << 6;
-          const int mask = column | next << 1;
-          column = next;
-          if (mask == 0 || mask == 255) continue;
-          const std::size_t p = i + j * sy + k * sz;
-          int decisions = 0;
-          if (const int amb = tab.ambiguous[mask]) {
-            for (int fi = 0; fi < 6; ++fi) {
-              if (!((amb >> fi) & 1)) continue;
-              const Face& face = faces()[fi];
-              float v[4];
-              for (int q = 0; q < 4; ++q) {
-                const int c = face.corners[q];
-                v[q] = value(i + (c & 1), j + ((c >> 1) & 1), k + ((c >> 2) & 1));
-              }
-              // Asymptotic decider: the bilinear saddle is inside iff the product of the inside
-              // diagonal exceeds that of the outside one. Same four floats in both cubes, and
-              // multiplication commutes exactly, so the neighbours agree bit for bit.
-              const bool c0_inside = (mask >> face.corners[0]) & 1;
-              const float p_in = c0_inside ? v[0] * v[2] : v[1] * v[3];
-              const float p_out = c0_inside ? v[1] * v[3] : v[0] * v[2];
-              if (p_in > p_out) decisions |= 1 << fi;
-            }
-          }
-          const Case& cs = tab.cases[mask | (decisions << 8)];
-          for (int e = 0; e < 12; ++e) {
-            const int b = kEdgeBase[e];
-            const std::size_t q = p + (b & 1) * sx + ((b >> 1) & 1) * sy + ((b >> 2) & 1) * sz;
-            if (inside[q] != inside[q + step[edge_axis(e)]])
-              vid[e] = static_cast<std::uint32_t>(edge_vertex[3 * q + edge_axis(e)]);
-          }
-          for (std::size_t l = 0; l < cs.centre_loops.size(); ++l) {
-            Vec3f c = Vec3f::Zero();
-            for (auto e : cs.centre_loops[l]) c += mesh.vertices[vid[e]];
-            out.centres.push_back(c / float(cs.centre_loops[l].size()));
-            vid[12 + l] = kCentreTag | static_cast<std::uint32_t>(out.centres.size() - 1);
-          }
-          for (const auto& tri : cs.triangles)
-            out.triangles.push_back({vid[tri[0]], vid[tri[1]], vid[tri[2]]});
-        }
-      }
-  });
+// Asymptotic decider (Nielson & Hamann) on the ambiguous faces of cell (i, j, k): bit f is set
+// when face f's bilinear saddle is inside, i.e. the product of the inside diagonal exceeds that of
+// the outside one. Same four floats in both cubes and multiplication commutes exactly, so the
+// neighbours agree bit for bit.
+int face_decisions(const McField& g, int amb, int mask, int i, int j, int k) {
+  int decisions = 0;
+  for (int fi = 0; fi < 6; ++fi) {
+    if (!((amb >> fi) & 1)) continue;
+    const Face& face = faces()[fi];
+    float v[4];
+    for (int q = 0; q < 4; ++q) {
+      const int c = face.corners[q];
+      v[q] = g.value(i + (c & 1), j + ((c >> 1) & 1), k + ((c >> 2) & 1));
+    }
+    const bool c0_inside = (mask >> face.corners[0]) & 1;
+    const float p_in = c0_inside ? v[0] * v[2] : v[1] * v[3];
+    const float p_out = c0_inside ? v[1] * v[3] : v[0] * v[2];
+    if (p_in > p_out) decisions |= 1 << fi;
+  }
+  return decisions;
+}
+
+// One thread's triangles; centre vertices are tagged and numbered after all edge vertices.
+struct McLocal {
+  std::vector<std::array<std::uint32_t, 3>> triangles;
+  std::vector<Vec3f> centres;
+};
+constexpr std::uint32_t kCentreTag = 0x80000000u;
+
+// The triangles of cell (i, j, k), whose corner mask is neither empty nor full.
+void emit_cell(const McField& g, const std::int32_t* edge_vertex, const Mesh& mesh, int mask, int i,
+               int j, int k, McLocal& out) {
+  const Tables& tab = tables();
+  const std::size_t p = i + j * g.sy + k * g.sz;
+  const std::size_t step[3] = {1, g.sy, g.sz};
+  const int amb = tab.ambiguous[mask];
+  const int decisions = amb ? face_decisions(g, amb, mask, i, j, k) : 0;
+  const Case& cs = tab.cases[mask | (decisions << 8)];
+  std::uint32_t vid[16];
+  for (int e = 0; e < 12; ++e) {
+    const int b = kEdgeBase[e];
+    const std::size_t q = p + (b & 1) + ((b >> 1) & 1) * g.sy + ((b >> 2) & 1) * g.sz;
+    if (g.inside[q] != g.inside[q + step[edge_axis(e)]])
+      vid[e] = static_cast<std::uint32_t>(edge_vertex[3 * q + edge_axis(e)]);
+  }
+  for (std::size_t l = 0; l < cs.centre_loops.size(); ++l) {
+    Vec3f c = Vec3f::Zero();
+    for (auto e : cs.centre_loops[l]) c += mesh.vertices[vid[e]];
+    out.centres.push_back(c / float(cs.centre_loops[l].size()));
+    vid[12 + l] = kCentreTag | static_cast<std::uint32_t>(out.centres.size() - 1);
+  }
+  for (const auto& tri : cs.triangles)
+    out.triangles.push_back({vid[tri[0]], vid[tri[1]], vid[tri[2]]});
+}
+
+// The cells of the row of cells between rows (j, k), (j + 1, k), (j, k + 1) and (j + 1, k + 1).
+void emit_cell_row(const McField& g, const std::int32_t* edge_vertex, const Mesh& mesh, int j,
+                   int k, McLocal& out) {
+  const int s0 = g.state(j, k);
+  if (s0 != 2 && s0 == g.state(j + 1, k) && s0 == g.state(j, k + 1) && s0 == g.state(j + 1, k + 1))
+    return;  // the four rows around this row of cells agree everywhere: no surface
+  // Corner c = cx + 2 cy + 4 cz: the four rows give bits 0, 2, 4, 6 at x and 1, 3, 5, 7 at x + 1.
+  const std::uint8_t* r00 = &g.inside[j * g.sy + k * g.sz];
+  const std::uint8_t* r10 = r00 + g.sy;
+  const std::uint8_t* r01 = r00 + g.sz;
+  const std::uint8_t* r11 = r00 + g.sy + g.sz;
+  int column = r00[0] | r10[0] << 2 | r01[0] << 4 | r11[0] << 6;
+  for (int i = 0; i + 1 < g.nx; ++i) {
+    const int next = r00[i + 1] | r10[i + 1] << 2 | r01[i + 1] << 4 | r11[i + 1] << 6;
+    const int mask = column | next << 1;
+    column = next;
+    if (mask != 0 && mask != 255) emit_cell(g, edge_vertex, mesh, mask, i, j, k, out);
+  }
+}
+
+// Appends each thread's triangles and centre vertices to the mesh, in thread order.
+void merge_locals(const std::vector<McLocal>& locals, Mesh& mesh) {
   std::size_t n_tri = 0;
   for (const auto& l : locals) n_tri += l.triangles.size();
   mesh.triangles.reserve(n_tri);
@@ -364,6 +375,34 @@ Mesh marching_cubes(const volume::Volume& field, float iso) {
     }
     mesh.vertices.insert(mesh.vertices.end(), l.centres.begin(), l.centres.end());
   }
+}
+
+}  // namespace
+
+Mesh marching_cubes(const volume::Volume& field, float iso) {
+  if (field.type() != volume::VoxelType::Float32)
+    throw std::invalid_argument("marching_cubes: field must be a Float32 volume");
+  const auto dims = field.dims();
+  if ((dims.array() < 2).any())
+    throw std::invalid_argument("marching_cubes: field needs at least 2 samples per axis");
+  tables();  // built once, before the threads read it
+  McField g;
+  g.nx = dims.x(), g.ny = dims.y(), g.nz = dims.z();
+  g.sy = static_cast<std::size_t>(g.nx), g.sz = g.sy * g.ny;
+  g.n_points = g.sz * g.nz;
+  g.f = field.f32().data();
+  g.iso = iso;
+  // Thread start-up costs more than a small grid's whole run.
+  const int threads = g.n_points < (1u << 15) ? 1 : mesh::default_threads();
+  classify(g, threads);
+  Mesh mesh;
+  const std::unique_ptr<std::int32_t[]> edge_vertex = place_vertices(g, field, threads, mesh);
+  std::vector<McLocal> locals(threads);
+  mesh::parallel_chunks(0, g.nz - 1, threads, [&](int k0, int k1, int t) {
+    for (int k = k0; k < k1; ++k)
+      for (int j = 0; j + 1 < g.ny; ++j) emit_cell_row(g, edge_vertex.get(), mesh, j, k, locals[t]);
+  });
+  merge_locals(locals, mesh);
   return mesh;
 }
 

@@ -131,9 +131,7 @@ float sample(const Grid& g, const float* field, const Vec3f& p_mm) {
   return v;
 }
 
-}  // namespace
-
-IndicatorGrid poisson_indicator(const PointCloud& s, const PoissonOptions& o) {
+void check_inputs(const PointCloud& s, const PoissonOptions& o) {
   check(!s.points.empty(), "no samples");
   check(s.normals.size() == s.points.size(), "normals.size() != points.size()");
   check(s.area_mm2.size() == s.points.size(), "area_mm2.size() != points.size()");
@@ -155,14 +153,17 @@ IndicatorGrid poisson_indicator(const PointCloud& s, const PoissonOptions& o) {
         "min_cell_fraction must be in [0.1, 1]");
   check(o.max_grid_dim >= 16 && o.max_grid_dim <= 1024, "max_grid_dim must be in [16, 1024]");
   check(o.fft_threads >= 1 && o.fft_threads <= 64, "fft_threads must be in [1, 64]");
+}
 
-  // A cell of one voxel blurs χ over ~2.5 voxels, which closes a tunnel a 2.5-voxel needle leaves.
-  // Refining everywhere would cost up to 27x the FFT work on every volume; most targets have no
-  // such feature, so only a cloud that describes one gets the finer grid. The area a feature must
-  // cover is in cells of the requested grid: 8 cells² is less than the wall of a tunnel 2 cells
-  // wide through a wall 2 cells thick (π·2·2 ≈ 12.6 cells²) and more than a few stray pairs.
+// The cell the grid uses: the requested one, or a finer one where the cloud describes a thin
+// feature. A cell of one voxel blurs χ over ~2.5 voxels, which closes a tunnel a 2.5-voxel needle
+// leaves; refining everywhere would cost up to 27x the FFT work, and most targets have no such
+// feature. The area a feature must cover is in cells of the requested grid: 8 cells² is less than
+// the wall of a tunnel 2 cells wide through a wall 2 cells thick (π·2·2 ≈ 12.6 cells²) and more
+// than a few stray pairs. Sets feature_mm to the narrowest feature (infinity when none).
+float chosen_cell_mm(const PointCloud& s, const PoissonOptions& o, float& feature_mm) {
   float cell_mm = o.cell_mm;
-  float feature_mm = std::numeric_limits<float>::infinity();
+  feature_mm = std::numeric_limits<float>::infinity();
   if (o.min_feature_cells > 0.0f && o.min_cell_fraction < 1.0f) {
     constexpr float kFeatureAreaCells = 8.0f;
     feature_mm = narrowest_feature_mm(s, o.min_feature_cells * o.cell_mm,
@@ -171,29 +172,32 @@ IndicatorGrid poisson_indicator(const PointCloud& s, const PoissonOptions& o) {
       cell_mm = std::max(quantized_cell_mm(feature_mm / o.min_feature_cells, o.cell_mm),
                          o.min_cell_fraction * o.cell_mm);
   }
-  const Grid g = make_grid(s, o, cell_mm);
-  const std::array<int, 3>& d = g.dims;
-  const std::size_t n_real = g.size(), n_cplx = g.complex_size();
-  const int hx = d[0] / 2 + 1;
-  internal::FftBuffer real(n_real), spectrum(2 * n_cplx);
-  const int threads = std::min(o.fft_threads, mesh::default_threads());
-  const float sigma_mm = o.smoothing_cells * g.cell_mm;
-  const float norm = 1.0f / float(n_real);  // FFTW's transforms are unnormalised
+  return cell_mm;
+}
 
-  // Per-axis wave numbers and Gaussian factors: exp(−σ²|k|²/2) separates into three 1D tables,
-  // which keeps exp() and divisions out of the per-bin loops.
+// The frequency bins of the grid's real-to-complex transform with their wave numbers and the
+// Gaussian factors: exp(−σ²|k|²/2) separates into three 1D tables, which keeps exp() and divisions
+// out of the per-bin loops.
+struct Bins {
+  std::array<int, 3> d{};
+  int hx = 0, threads = 1;
   std::array<std::vector<float>, 3> kv, gauss;
-  for (int a = 0; a < 3; ++a) {
-    const int n = a == 0 ? hx : d[a];
-    kv[a].resize(n);
-    gauss[a].resize(n);
-    for (int m = 0; m < n; ++m) {
-      kv[a][m] = wave_number(m, d[a], g.cell_mm);
-      gauss[a][m] = std::exp(-0.5f * sigma_mm * sigma_mm * kv[a][m] * kv[a][m]);
+
+  Bins(const Grid& g, float sigma_mm, int threads_)
+      : d(g.dims), hx(g.dims[0] / 2 + 1), threads(threads_) {
+    for (int a = 0; a < 3; ++a) {
+      const int n = a == 0 ? hx : d[a];
+      kv[a].resize(n);
+      gauss[a].resize(n);
+      for (int m = 0; m < n; ++m) {
+        kv[a][m] = wave_number(m, d[a], g.cell_mm);
+        gauss[a][m] = std::exp(-0.5f * sigma_mm * sigma_mm * kv[a][m] * kv[a][m]);
+      }
     }
   }
-  // Visits every frequency bin with its wave vector (both cores).
-  auto for_each_bin = [&](auto&& fn) {
+  // Visits every frequency bin with its wave vector: fn(index, kx, ky, kz, x, y, z).
+  template <class Fn>
+  void for_each(Fn&& fn) const {
     mesh::parallel_chunks(0, d[2], threads, [&](int z0, int z1, int) {
       for (int z = z0; z < z1; ++z) {
         for (int y = 0; y < d[1]; ++y) {
@@ -202,67 +206,102 @@ IndicatorGrid poisson_indicator(const PointCloud& s, const PoissonOptions& o) {
         }
       }
     });
-  };
-  // A derivative of a real signal has no meaningful Nyquist component: zero it.
-  auto nyq = [&](int m, int axis) { return d[axis] % 2 == 0 && m == d[axis] / 2; };
-
-  if (o.divergence == DivergenceMode::Spectral) {
-    internal::FftBuffer acc(2 * n_cplx);
-    std::complex<float>* a = acc.complex();
-    for (int axis = 0; axis < 3; ++axis) {
-      std::fill(real.data(), real.data() + n_real, 0.0f);
-      splat(g, s, axis, real.data());
-      internal::fft_forward(d, real.data(), spectrum.complex(), threads, o.measure_fft_plans);
-      const std::complex<float>* c = spectrum.complex();
-      for_each_bin([&](std::size_t i, float kx, float ky, float kz, int x, int y, int z) {
-        const int m[3] = {x, y, z};
-        const float k = nyq(m[axis], axis) ? 0.0f : (axis == 0 ? kx : axis == 1 ? ky : kz);
-        const std::complex<float> term = std::complex<float>(0.0f, k) * c[i];  // i k_a V̂_a
-        a[i] = axis == 0 ? term : a[i] + term;
-      });
-    }
-    std::copy(a, a + n_cplx, spectrum.complex());
-  } else {
-    // ∇·V by central differences on the grid, then a single forward transform.
-    internal::FftBuffer div(n_real);
-    std::fill(div.data(), div.data() + n_real, 0.0f);
-    const std::size_t stride[3] = {1, std::size_t(d[0]), std::size_t(d[0]) * d[1]};
-    const float inv_2h = 0.5f / g.cell_mm;
-    for (int axis = 0; axis < 3; ++axis) {
-      std::fill(real.data(), real.data() + n_real, 0.0f);
-      splat(g, s, axis, real.data());
-      const float* v = real.data();
-      float* dv = div.data();
-      mesh::parallel_chunks(0, d[2], threads, [&](int z0, int z1, int) {
-        for (int z = z0; z < z1; ++z)
-          for (int y = 0; y < d[1]; ++y)
-            for (int x = 0; x < d[0]; ++x) {
-              const int c[3] = {x, y, z};
-              // The splat never reaches the outermost cells (padding), so clamping is exact.
-              if (c[axis] == 0 || c[axis] == d[axis] - 1) continue;
-              const std::size_t p = x + stride[1] * y + stride[2] * z;
-              dv[p] += (v[p + stride[axis]] - v[p - stride[axis]]) * inv_2h;
-            }
-      });
-    }
-    internal::fft_forward(d, div.data(), spectrum.complex(), threads, o.measure_fft_plans);
   }
+  // A derivative of a real signal has no meaningful Nyquist component: it is zeroed.
+  bool nyquist(int m, int axis) const { return d[axis] % 2 == 0 && m == d[axis] / 2; }
+};
+
+// spectrum = i k·V̂, each axis splatted and transformed on its own.
+void spectral_divergence(const Grid& g, const PointCloud& s, const PoissonOptions& o,
+                         const Bins& bins, internal::FftBuffer& real,
+                         internal::FftBuffer& spectrum) {
+  const std::size_t n_real = g.size(), n_cplx = g.complex_size();
+  internal::FftBuffer acc(2 * n_cplx);
+  std::complex<float>* a = acc.complex();
+  for (int axis = 0; axis < 3; ++axis) {
+    std::fill(real.data(), real.data() + n_real, 0.0f);
+    splat(g, s, axis, real.data());
+    internal::fft_forward(g.dims, real.data(), spectrum.complex(), bins.threads,
+                          o.measure_fft_plans);
+    const std::complex<float>* c = spectrum.complex();
+    bins.for_each([&](std::size_t i, float kx, float ky, float kz, int x, int y, int z) {
+      const int m[3] = {x, y, z};
+      const float k = bins.nyquist(m[axis], axis) ? 0.0f : (axis == 0 ? kx : axis == 1 ? ky : kz);
+      const std::complex<float> term = std::complex<float>(0.0f, k) * c[i];  // i k_a V̂_a
+      a[i] = axis == 0 ? term : a[i] + term;
+    });
+  }
+  std::copy(a, a + n_cplx, spectrum.complex());
+}
+
+// spectrum = the transform of ∇·V by central differences on the grid.
+void grid_divergence(const Grid& g, const PointCloud& s, const PoissonOptions& o, int threads,
+                     internal::FftBuffer& real, internal::FftBuffer& spectrum) {
+  const std::array<int, 3>& d = g.dims;
+  const std::size_t n_real = g.size();
+  internal::FftBuffer div(n_real);
+  std::fill(div.data(), div.data() + n_real, 0.0f);
+  const std::size_t stride[3] = {1, std::size_t(d[0]), std::size_t(d[0]) * d[1]};
+  const float inv_2h = 0.5f / g.cell_mm;
+  for (int axis = 0; axis < 3; ++axis) {
+    std::fill(real.data(), real.data() + n_real, 0.0f);
+    splat(g, s, axis, real.data());
+    const float* v = real.data();
+    float* dv = div.data();
+    mesh::parallel_chunks(0, d[2], threads, [&](int z0, int z1, int) {
+      for (int z = z0; z < z1; ++z)
+        for (int y = 0; y < d[1]; ++y)
+          for (int x = 0; x < d[0]; ++x) {
+            const int c[3] = {x, y, z};
+            // The splat never reaches the outermost cells (padding), so clamping is exact.
+            if (c[axis] == 0 || c[axis] == d[axis] - 1) continue;
+            const std::size_t p = x + stride[1] * y + stride[2] * z;
+            dv[p] += (v[p + stride[axis]] - v[p - stride[axis]]) * inv_2h;
+          }
+    });
+  }
+  internal::fft_forward(d, div.data(), spectrum.complex(), threads, o.measure_fft_plans);
+}
+
+// The indicator's iso value: its area-weighted mean at the samples.
+float iso_at_samples(const Grid& g, const PointCloud& s, const float* chi) {
+  double weighted = 0.0, total = 0.0;
+  for (std::size_t n = 0; n < s.points.size(); ++n) {
+    weighted += double(s.area_mm2[n]) * sample(g, chi, s.points[n]);
+    total += s.area_mm2[n];
+  }
+  return total > 0.0 ? float(weighted / total) : 0.0f;
+}
+
+}  // namespace
+
+IndicatorGrid poisson_indicator(const PointCloud& s, const PoissonOptions& o) {
+  check_inputs(s, o);
+  float feature_mm = 0.0f;
+  const Grid g = make_grid(s, o, chosen_cell_mm(s, o, feature_mm));
+  const std::array<int, 3>& d = g.dims;
+  const std::size_t n_real = g.size(), n_cplx = g.complex_size();
+  internal::FftBuffer real(n_real), spectrum(2 * n_cplx);
+  const int threads = std::min(o.fft_threads, mesh::default_threads());
+  const float norm = 1.0f / float(n_real);  // FFTW's transforms are unnormalised
+  const Bins bins(g, o.smoothing_cells * g.cell_mm, threads);
+
+  if (o.divergence == DivergenceMode::Spectral)
+    spectral_divergence(g, s, o, bins, real, spectrum);
+  else
+    grid_divergence(g, s, o, threads, real, spectrum);
 
   // χ̂ = (i k·V̂) / |k|² · exp(−σ²|k|²/2), χ̂(0) = 0.
   std::complex<float>* c = spectrum.complex();
-  for_each_bin([&](std::size_t i, float kx, float ky, float kz, int x, int y, int z) {
+  bins.for_each([&](std::size_t i, float kx, float ky, float kz, int x, int y, int z) {
     const float kk = kx * kx + ky * ky + kz * kz;
-    c[i] = kk > 0.0f ? c[i] * (gauss[0][x] * gauss[1][y] * gauss[2][z] * norm / kk) : 0.0f;
+    c[i] = kk > 0.0f ? c[i] * (bins.gauss[0][x] * bins.gauss[1][y] * bins.gauss[2][z] * norm / kk)
+                     : 0.0f;
   });
   internal::fft_inverse(d, c, real.data(), threads, o.measure_fft_plans);
 
-  double weighted = 0.0, total = 0.0;
-  for (std::size_t n = 0; n < s.points.size(); ++n) {
-    weighted += double(s.area_mm2[n]) * sample(g, real.data(), s.points[n]);
-    total += s.area_mm2[n];
-  }
   IndicatorGrid out;
-  out.iso = total > 0.0 ? float(weighted / total) : 0.0f;
+  out.iso = iso_at_samples(g, s, real.data());
   out.cell_mm = g.cell_mm;
   out.feature_mm = feature_mm;
   out.chi = volume::Volume(volume::Vec3i(d[0], d[1], d[2]), Vec3f::Constant(g.cell_mm), g.origin_mm,

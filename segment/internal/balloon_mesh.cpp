@@ -306,10 +306,20 @@ void BalloonMesh::collapse(Halfedge h) {
   deleted_faces_ += 2;
 }
 
-void BalloonMesh::garbage_collection() {
-  if (!has_garbage()) return;
-  std::vector<std::uint32_t> vmap, emap, fmap;  // indexed by old index − new size
-  const std::uint32_t nv = compact(
+// The index maps of one garbage collection, each indexed by old index − new size, and the new
+// sizes.
+struct BalloonMesh::Compaction {
+  std::vector<std::uint32_t> vmap, emap, fmap;
+  std::uint32_t nv = 0, ne = 0, nf = 0;
+  // A halfedge moves with its edge and keeps its side.
+  Halfedge halfedge(Halfedge h) const {
+    return (h.idx >> 1) < ne ? h : Halfedge{2 * emap[(h.idx >> 1) - ne] + (h.idx & 1u)};
+  }
+};
+
+BalloonMesh::Compaction BalloonMesh::compact_all() {
+  Compaction c;
+  c.nv = compact(
       vertex_deleted_, deleted_vertices_,
       [&](std::uint32_t i, std::uint32_t j) {
         std::swap(points_mm_[i], points_mm_[j]);
@@ -317,8 +327,8 @@ void BalloonMesh::garbage_collection() {
         std::swap(vertex_halfedge_[i], vertex_halfedge_[j]);
         std::swap(vertex_deleted_[i], vertex_deleted_[j]);
       },
-      vmap);
-  const std::uint32_t ne = compact(
+      c.vmap);
+  c.ne = compact(
       edge_deleted_, deleted_edges_,
       [&](std::uint32_t i, std::uint32_t j) {
         for (std::uint32_t s = 0; s < 2; ++s) {
@@ -328,76 +338,81 @@ void BalloonMesh::garbage_collection() {
         }
         std::swap(edge_deleted_[i], edge_deleted_[j]);
       },
-      emap);
-  const std::uint32_t nf = compact(
+      c.emap);
+  c.nf = compact(
       face_deleted_, deleted_faces_,
       [&](std::uint32_t i, std::uint32_t j) {
         std::swap(face_halfedge_[i], face_halfedge_[j]);
         std::swap(face_deleted_[i], face_deleted_[j]);
       },
-      fmap);
+      c.fmap);
+  points_mm_.resize(c.nv);
+  states_.resize(c.nv);
+  vertex_halfedge_.resize(c.nv);
+  vertex_deleted_.resize(c.nv);
+  halfedge_vertex_.resize(2 * c.ne);
+  halfedge_next_.resize(2 * c.ne);
+  halfedge_face_.resize(2 * c.ne);
+  edge_deleted_.resize(c.ne);
+  face_halfedge_.resize(c.nf);
+  face_deleted_.resize(c.nf);
+  return c;
+}
 
-  points_mm_.resize(nv);
-  states_.resize(nv);
-  vertex_halfedge_.resize(nv);
-  vertex_deleted_.resize(nv);
-  halfedge_vertex_.resize(2 * ne);
-  halfedge_next_.resize(2 * ne);
-  halfedge_face_.resize(2 * ne);
-  edge_deleted_.resize(ne);
-  face_halfedge_.resize(nf);
-  face_deleted_.resize(nf);
+// Maps halfedge i's references; current ones are left alone, so an entry may be renewed more
+// than once.
+void BalloonMesh::renew(const Compaction& c, std::uint32_t i) {
+  if (halfedge_vertex_[i].idx >= c.nv)
+    halfedge_vertex_[i] = Vertex{c.vmap[halfedge_vertex_[i].idx - c.nv]};
+  if (halfedge_next_[i].valid()) halfedge_next_[i] = c.halfedge(halfedge_next_[i]);
+  if (halfedge_face_[i].valid() && halfedge_face_[i].idx >= c.nf)
+    halfedge_face_[i] = Face{c.fmap[halfedge_face_[i].idx - c.nf]};
+}
 
-  // Compaction fills holes with elements from the tail only, so every live element below the new
-  // size kept its index, and only references to an element that moved are stale. Each of those
-  // lies next to the element it names, so they are found from the moved elements, not by a pass
-  // over every halfedge (that pass was 8 % of the balloon's instructions at 128³, for the few
-  // dozen elements a remeshing pass moves). `renew` maps a halfedge's references; it leaves
-  // current ones alone, so an entry may be renewed more than once. A halfedge moves with its edge
-  // and keeps its side.
-  auto new_halfedge = [&](Halfedge h) {
-    return (h.idx >> 1) < ne ? h : Halfedge{2 * emap[(h.idx >> 1) - ne] + (h.idx & 1u)};
-  };
-  auto renew = [&](std::uint32_t i) {
-    if (halfedge_vertex_[i].idx >= nv)
-      halfedge_vertex_[i] = Vertex{vmap[halfedge_vertex_[i].idx - nv]};
-    if (halfedge_next_[i].valid()) halfedge_next_[i] = new_halfedge(halfedge_next_[i]);
-    if (halfedge_face_[i].valid() && halfedge_face_[i].idx >= nf)
-      halfedge_face_[i] = Face{fmap[halfedge_face_[i].idx - nf]};
-  };
-  // Renews every halfedge of h's loop (a triangle, or a boundary while add_triangle() builds),
-  // the last of which is h's predecessor, whose next named h.
-  auto renew_loop = [&](std::uint32_t h) {
-    std::uint32_t g = h;
-    do {
-      renew(g);
-      g = halfedge_next_[g].idx;
-    } while (g != h);
-  };
-  for (const std::uint32_t e : emap) {
+// Renews every halfedge of h's loop (a triangle, or a boundary while add_triangle() builds), the
+// last of which is h's predecessor, whose next named h.
+void BalloonMesh::renew_loop(const Compaction& c, std::uint32_t h) {
+  std::uint32_t g = h;
+  do {
+    renew(c, g);
+    g = halfedge_next_[g].idx;
+  } while (g != h);
+}
+
+// Compaction fills holes with elements from the tail only, so every live element below the new
+// size kept its index, and only references to an element that moved are stale. Each of those lies
+// next to the element it names, so they are found from the moved elements, not by a pass over
+// every halfedge, which costs more than the few dozen elements a remeshing pass moves.
+void BalloonMesh::renew_moved(const Compaction& c) {
+  for (const std::uint32_t e : c.emap) {
     if (e == kInvalidIndex) continue;  // a deleted element of the tail
     for (std::uint32_t h = 2 * e; h < 2 * e + 2; ++h) {
-      renew(h ^ 1u);
+      renew(c, h ^ 1u);
       Halfedge& out = vertex_halfedge_[halfedge_vertex_[h ^ 1u].idx];  // of h's from-vertex
-      out = new_halfedge(out);
-      renew_loop(h);
+      out = c.halfedge(out);
+      renew_loop(c, h);
       if (!halfedge_face_[h].valid()) continue;  // a boundary while add_triangle() builds
       Halfedge& held = face_halfedge_[halfedge_face_[h].idx];  // of h's face
-      held = new_halfedge(held);
+      held = c.halfedge(held);
     }
   }
-  for (const std::uint32_t v : vmap) {  // the halfedges into it: the twins of its outgoing ones
+  for (const std::uint32_t v : c.vmap) {  // the halfedges into it: the twins of its outgoing ones
     if (v == kInvalidIndex || !vertex_halfedge_[v].valid()) continue;
     const std::uint32_t start = vertex_halfedge_[v].idx;
     std::uint32_t g = start;
     do {
-      renew(g);
-      renew(g ^ 1u);
+      renew(c, g);
+      renew(c, g ^ 1u);
       g = halfedge_next_[g ^ 1u].idx;
     } while (g != start);
   }
-  for (const std::uint32_t f : fmap)
-    if (f != kInvalidIndex) renew_loop(face_halfedge_[f].idx);
+  for (const std::uint32_t f : c.fmap)
+    if (f != kInvalidIndex) renew_loop(c, face_halfedge_[f].idx);
+}
+
+void BalloonMesh::garbage_collection() {
+  if (!has_garbage()) return;
+  renew_moved(compact_all());
   deleted_vertices_ = deleted_edges_ = deleted_faces_ = 0;
 }
 

@@ -134,6 +134,12 @@ class BalloonMesh {
   void adjust_outgoing_halfedge(Vertex v);
   // Face f is the triangle a -> b -> c (halfedges), held by a.
   void set_triangle(Face f, Halfedge a, Halfedge b, Halfedge c);
+  // garbage_collection's phases: compaction, then renewing the references to moved elements.
+  struct Compaction;
+  Compaction compact_all();
+  void renew(const Compaction& c, std::uint32_t h);
+  void renew_loop(const Compaction& c, std::uint32_t h);
+  void renew_moved(const Compaction& c);
 
   std::vector<Vec3f> points_mm_;
   std::vector<VertexState> states_;

@@ -194,133 +194,182 @@ std::uint64_t now_ns() {
 
 bool due(std::uint64_t n, std::uint64_t every) { return every > 0 && n % every == 0; }
 
-int run_serve(const ServeArgs& args) {
+void check_serve_args(const ServeArgs& args) {
   if (args.phantom.empty() == args.replay.empty())
     throw std::invalid_argument("give exactly one of --phantom NAME or --replay PATH");
-  if (args.rate_hz < 0 || !std::isfinite(args.rate_hz) || (args.replay.empty() && args.rate_hz == 0))
+  if (args.rate_hz < 0 || !std::isfinite(args.rate_hz) ||
+      (args.replay.empty() && args.rate_hz == 0))
     throw std::invalid_argument("--rate must be > 0 (or 0 with --replay: recorded timestamps)");
   if (args.size < 16) throw std::invalid_argument("--size must be at least 16");
   if (args.listen.empty() == args.igtl.empty())
     throw std::invalid_argument("give exactly one of --listen (probe stream) or --igtl HOST:PORT");
+}
+
+// What became of a volume record handed to the client.
+enum class Sent { Ok, Dropped, ClientClosed };
+
+// The probe stream on --listen: one client at a time, paced volumes with heartbeats between them,
+// and the fault schedule (1-based over the volume records produced).
+class StreamServer {
+ public:
+  StreamServer(const ServeArgs& args, VolumeFeed& feed)
+      : args_(args), feed_(feed), listener_(args.listen), fault_rng_(args.fault_seed) {}
+
+  void run() {
+    listener_.start();
+    while (!finished_) {
+      const int client = listener_.accept_client();
+      log_line("client connected");
+      // Finished, truncated or the client went away; a disconnect fault closed it already.
+      if (!serve_client(client)) ::close(client);
+    }
+  }
+
+ private:
+  // Streams to one client until the stream ends or the connection does; true when a disconnect
+  // fault closed the client.
+  bool serve_client(int client) {
+    const auto start = Clock::now();
+    const std::uint64_t start_records = records_;
+    first_ts_.reset();  // recorded-timestamp pacing restarts with each client
+    last_send_ = Clock::now();
+    for (;;) {
+      if (end_of_stream(client)) {
+        finished_ = true;
+        return false;
+      }
+      const Clock::time_point when = send_time(start, records_ - start_records);
+      if (!heartbeat_until(client, when)) return false;
+      std::this_thread::sleep_until(when);
+      acquire::RawVolume volume = std::move(*pending_);
+      pending_.reset();
+      const std::uint64_t n = ++records_;
+      sequence_ = volume.sequence + 1;
+      const Sent sent = send_volume(client, n, volume);
+      if (sent == Sent::Dropped) continue;
+      if (sent == Sent::ClientClosed) return false;
+      last_send_ = Clock::now();
+      if (due(n, args_.disconnect_every) && !count_reached()) {
+        disconnect(client, volume.sequence);
+        return true;
+      }
+    }
+  }
+
+  bool count_reached() const { return args_.count > 0 && records_ >= args_.count; }
+
+  // At the --count limit or the end of the recording: sends end of stream. Else the next volume
+  // is pending.
+  bool end_of_stream(int client) {
+    std::string why;
+    if (count_reached()) {
+      why = "end of stream after " + std::to_string(records_) + " volumes";
+    } else if (!pending_ && !(pending_ = feed_.next(sequence_))) {
+      why = "end of stream: recording finished after " + std::to_string(records_) + " volumes";
+    } else {
+      return false;
+    }
+    const auto eos = acquire::encode_end_of_stream(sequence_, now_ns());
+    send_all(client, eos.data(), eos.size());
+    log_line(why);
+    return true;
+  }
+
+  // Pacing: the k-th volume of this client at a fixed rate, or at the recording's own timestamps.
+  Clock::time_point send_time(Clock::time_point start, std::uint64_t k) {
+    if (args_.rate_hz > 0)
+      return start + std::chrono::nanoseconds(static_cast<std::int64_t>(
+                         std::llround(static_cast<double>(k) * 1e9 / args_.rate_hz)));
+    if (!first_ts_) first_ts_ = pending_->timestamp_ns;
+    return pending_->timestamp_ns < *first_ts_
+               ? Clock::now()
+               : start + std::chrono::nanoseconds(pending_->timestamp_ns - *first_ts_);
+  }
+
+  // Idle until `when`: heartbeats, which also reveal a client that went away (false).
+  bool heartbeat_until(int client, Clock::time_point when) {
+    const auto period = std::chrono::milliseconds(args_.heartbeat_ms);
+    while (Clock::now() + period < when) {
+      std::this_thread::sleep_until(std::max(Clock::now(), last_send_ + period));
+      if (Clock::now() >= last_send_ + period) {
+        const auto hb = acquire::encode_heartbeat(pending_->sequence, now_ns());
+        if (!send_all(client, hb.data(), hb.size())) return false;
+        last_send_ = Clock::now();
+      }
+    }
+    return true;
+  }
+
+  // Record n with its faults: dropped, truncated (then the connection ends), or a flipped bit.
+  Sent send_volume(int client, std::uint64_t n, const acquire::RawVolume& volume) {
+    const std::uint64_t seq = volume.sequence;
+    if (due(n, args_.drop_every)) {
+      log_line("fault drop seq=" + std::to_string(seq));
+      return Sent::Dropped;
+    }
+    auto bytes = acquire::encode_volume_record(volume);
+    if (!bytes) throw std::runtime_error(bytes.error().detail);
+    if (due(n, args_.truncate_every)) {
+      log_line("fault truncate seq=" + std::to_string(seq));
+      send_all(client, bytes->data(), bytes->size() / 2);
+      return Sent::ClientClosed;
+    }
+    if (due(n, args_.corrupt_every)) corrupt(*bytes, seq);
+    if (!send_all(client, bytes->data(), bytes->size())) {
+      log_line("client gone at seq=" + std::to_string(seq));
+      return Sent::ClientClosed;
+    }
+    return Sent::Ok;
+  }
+
+  // Flips one bit of the header or of the payload.
+  void corrupt(std::vector<std::uint8_t>& bytes, std::uint64_t seq) {
+    const bool header = fault_rng_() % 2 == 0;
+    const std::size_t payload = bytes.size() - acquire::kHeaderBytes - acquire::kPayloadCrcBytes;
+    const std::size_t offset = header ? fault_rng_() % acquire::kHeaderBytes
+                                      : acquire::kHeaderBytes + fault_rng_() % payload;
+    bytes[offset] ^= static_cast<std::uint8_t>(1u << (fault_rng_() % 8));
+    log_line("fault corrupt seq=" + std::to_string(seq) +
+             " where=" + (header ? "header" : "payload") + " offset=" + std::to_string(offset));
+  }
+
+  // Closes the client and stops listening for --down-ms.
+  void disconnect(int client, std::uint64_t seq) {
+    log_line("fault disconnect seq=" + std::to_string(seq) +
+             " down_ms=" + std::to_string(args_.down_ms));
+    ::close(client);
+    listener_.stop();
+    std::this_thread::sleep_for(std::chrono::milliseconds(args_.down_ms));
+    listener_.start();
+  }
+
+  const ServeArgs& args_;
+  VolumeFeed& feed_;
+  Listener listener_;
+  std::mt19937 fault_rng_;
+  std::uint64_t sequence_ = 0;  // next volume's sequence as the probe numbers them
+  std::uint64_t records_ = 0;   // volume records produced
+  std::optional<acquire::RawVolume> pending_;
+  bool finished_ = false;
+  std::optional<std::uint64_t> first_ts_;
+  Clock::time_point last_send_;
+};
+
+int run_serve(const ServeArgs& args) {
+  check_serve_args(args);
   ::signal(SIGPIPE, SIG_IGN);
   VolumeFeed feed(args);
   if (!args.igtl.empty()) {
     if (args.corrupt_every || args.drop_every || args.truncate_every || args.disconnect_every)
       throw std::invalid_argument("the fault options apply to --listen only, not --igtl");
-    IgtlServeOptions options{args.igtl, args.rate_hz, args.count, args.igtl_header, args.igtl_device};
+    IgtlServeOptions options{args.igtl, args.rate_hz, args.count, args.igtl_header,
+                             args.igtl_device};
     return run_igtl_serve(options, [&feed](std::uint64_t sequence) { return feed.next(sequence); });
   }
   if (args.oblique)  // the probe stream's header has no direction: it would be lost silently
     throw std::invalid_argument("--oblique needs --igtl (the probe stream carries no direction)");
-  Listener listener(args.listen);
-  listener.start();
-  std::mt19937 fault_rng(args.fault_seed);
-
-  std::uint64_t sequence = 0;          // next volume's sequence as the probe numbers them
-  std::uint64_t records = 0;           // volume records produced, 1-based fault schedule
-  std::optional<acquire::RawVolume> pending;
-  bool finished = false;
-  std::optional<std::uint64_t> first_ts;
-  while (!finished) {
-    const int client = listener.accept_client();
-    log_line("client connected");
-    const auto start = Clock::now();
-    const std::uint64_t start_records = records;
-    first_ts.reset();  // recorded-timestamp pacing restarts with each client
-    auto last_send = Clock::now();
-    bool connected = true;
-    bool disconnected = false;
-    while (connected) {
-      if (args.count > 0 && records >= args.count) {
-        const auto eos = acquire::encode_end_of_stream(sequence, now_ns());
-        send_all(client, eos.data(), eos.size());
-        log_line("end of stream after " + std::to_string(records) + " volumes");
-        finished = true;
-        break;
-      }
-      if (!pending) {
-        pending = feed.next(sequence);
-        if (!pending) {  // end of the recording
-          const auto eos = acquire::encode_end_of_stream(sequence, now_ns());
-          send_all(client, eos.data(), eos.size());
-          log_line("end of stream: recording finished after " + std::to_string(records) + " volumes");
-          finished = true;
-          break;
-        }
-      }
-      // Pacing: fixed rate, or the recording's own timestamps.
-      const std::uint64_t k = records - start_records;
-      Clock::time_point when;
-      if (args.rate_hz > 0) {
-        when = start + std::chrono::nanoseconds(static_cast<std::int64_t>(
-                           std::llround(static_cast<double>(k) * 1e9 / args.rate_hz)));
-      } else {
-        if (!first_ts) first_ts = pending->timestamp_ns;
-        when = pending->timestamp_ns < *first_ts
-                   ? Clock::now()
-                   : start + std::chrono::nanoseconds(pending->timestamp_ns - *first_ts);
-      }
-      // Idle: heartbeats, which also reveal a client that went away.
-      while (Clock::now() + std::chrono::milliseconds(args.heartbeat_ms) < when) {
-        std::this_thread::sleep_until(std::max(Clock::now(), last_send + std::chrono::milliseconds(args.heartbeat_ms)));
-        if (Clock::now() >= last_send + std::chrono::milliseconds(args.heartbeat_ms)) {
-          const auto hb = acquire::encode_heartbeat(pending->sequence, now_ns());
-          if (!send_all(client, hb.data(), hb.size())) {
-            connected = false;
-            break;
-          }
-          last_send = Clock::now();
-        }
-      }
-      if (!connected) break;
-      std::this_thread::sleep_until(when);
-
-      acquire::RawVolume volume = std::move(*pending);
-      pending.reset();
-      const std::uint64_t n = ++records;
-      const std::uint64_t seq = volume.sequence;
-      sequence = seq + 1;
-      if (due(n, args.drop_every)) {
-        log_line("fault drop seq=" + std::to_string(seq));
-        continue;
-      }
-      auto bytes = acquire::encode_volume_record(volume);
-      if (!bytes) throw std::runtime_error(bytes.error().detail);
-      if (due(n, args.truncate_every)) {
-        log_line("fault truncate seq=" + std::to_string(seq));
-        send_all(client, bytes->data(), bytes->size() / 2);
-        connected = false;
-        break;
-      }
-      if (due(n, args.corrupt_every)) {
-        const bool header = fault_rng() % 2 == 0;
-        const std::size_t payload = bytes->size() - acquire::kHeaderBytes - acquire::kPayloadCrcBytes;
-        const std::size_t offset = header ? fault_rng() % acquire::kHeaderBytes
-                                          : acquire::kHeaderBytes + fault_rng() % payload;
-        (*bytes)[offset] ^= static_cast<std::uint8_t>(1u << (fault_rng() % 8));
-        log_line("fault corrupt seq=" + std::to_string(seq) + " where=" +
-                 (header ? "header" : "payload") + " offset=" + std::to_string(offset));
-      }
-      if (!send_all(client, bytes->data(), bytes->size())) {
-        log_line("client gone at seq=" + std::to_string(seq));
-        connected = false;
-        break;
-      }
-      last_send = Clock::now();
-      if (due(n, args.disconnect_every) && !(args.count > 0 && records >= args.count)) {
-        log_line("fault disconnect seq=" + std::to_string(seq) + " down_ms=" + std::to_string(args.down_ms));
-        ::close(client);
-        listener.stop();
-        std::this_thread::sleep_for(std::chrono::milliseconds(args.down_ms));
-        listener.start();
-        disconnected = true;
-        connected = false;
-        break;
-      }
-    }
-    // Finished, truncated or the client went away; a disconnect fault closed it already.
-    if (!disconnected) ::close(client);
-  }
+  StreamServer server(args, feed);
+  server.run();
   return 0;
 }
 
