@@ -81,6 +81,10 @@ struct BalloonOptions {
   int threads = 0;  // 0 = all hardware threads, 1 = serial
 };
 
+/// The first option out of range, as one line naming it ("tau_curv must be > 0"), or empty when
+/// the balloon runs with these options. inflate_balloon and reinflate refuse the same options.
+std::string validate(const BalloonOptions& options);
+
 struct BalloonStats {
   int iterations = 0;
   std::array<int, 5> stop_counts{};  // vertices per StopReason (indexed by its value)

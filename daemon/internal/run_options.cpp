@@ -391,18 +391,9 @@ std::optional<std::string> check_value(const OptionSpec& spec, const OptionValue
 }
 
 std::optional<std::string> check_cross_rules(const RunConfig& c) {
-  const segment::BalloonOptions& b = c.pipeline.balloon;
-  // Each rule keeps the balloon's explicit Euler step from jumping a wall or diverging.
-  if (b.time_step * b.inflation_vox > 0.5f) {
-    return "pipeline.balloon: time_step * inflation_vox must be <= 0.5 voxel per iteration";
-  }
-  if (b.time_step * b.umbrella_weight > 1.0f) {
-    return "pipeline.balloon: time_step * umbrella_weight must be <= 1";
-  }
-  // The snap samples at most 8 voxels along the normal.
-  if (b.snap_back_vox + b.snap_ahead_vox > 8.0f) {
-    return "pipeline.balloon: snap_back_vox + snap_ahead_vox must be <= 8 vox";
-  }
+  // The balloon's own check, so a configuration that loads is one the balloon runs with.
+  if (const std::string problem = segment::validate(c.pipeline.balloon); !problem.empty())
+    return "pipeline.balloon: " + problem;
   return std::nullopt;
 }
 

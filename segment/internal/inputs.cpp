@@ -23,33 +23,40 @@ const volume::Volume& as_float32(const volume::Volume& v, volume::Volume& storag
 }
 
 void check_options(const BalloonOptions& o) {
-  auto fail = [](const std::string& what) {
-    throw std::invalid_argument("BalloonOptions: " + what);
-  };
-  if (!(o.time_step > 0.0f)) fail("time_step must be > 0");
-  if (!(o.inflation_vox > 0.0f)) fail("inflation_vox must be > 0");
-  if (o.time_step * o.inflation_vox > 0.5f)
-    fail("time_step * inflation_vox must be <= 0.5 voxel (no wall may be jumped over)");
-  if (!(o.umbrella_weight >= 0.0f) || o.time_step * o.umbrella_weight > 1.0f)
-    fail("time_step * umbrella_weight must be in [0, 1] (explicit Euler stability)");
-  if (!(o.initial_radius_vox >= 1.0f)) fail("initial_radius_vox must be >= 1");
-  if (!(o.tau_cost >= 0.0f)) fail("tau_cost must be >= 0 (0 = derive from the image)");
-  if (!(o.tau_cost_fraction > 0.0f && o.tau_cost_fraction < 1.0f))
-    fail("tau_cost_fraction must be in (0, 1)");
-  if (!(o.climb_backstop_fraction > 0.0f && o.climb_backstop_fraction <= 1.0f))
-    fail("climb_backstop_fraction must be in (0, 1]");
-  if (!(o.tau_curv > 0.0f)) fail("tau_curv must be > 0");
-  if (!(o.snap_back_vox >= 0.0f) || !(o.snap_ahead_vox >= 0.0f) ||
-      !(o.snap_back_vox + o.snap_ahead_vox <= 8.0f))
-    fail("snap_back_vox and snap_ahead_vox must be >= 0 with a sum <= 8");
-  if (!(o.snap_min_slope >= 0.0f)) fail("snap_min_slope must be >= 0");
-  if (!(o.cost_window_vox >= 0.0f)) fail("cost_window_vox must be >= 0 (0 = plain sum)");
-  if (!(o.target_edge_vox > 0.0f)) fail("target_edge_vox must be > 0");
-  if (o.remesh_every_iterations < 1) fail("remesh_every_iterations must be >= 1");
-  if (o.max_iterations < 1) fail("max_iterations must be >= 1");
-  if (!(o.max_area_fraction > 0.0f)) fail("max_area_fraction must be > 0");
-  if (o.stall_window_iterations < 1) fail("stall_window_iterations must be >= 1");
-  if (o.threads < 0) fail("threads must be >= 0");
+  if (const std::string problem = validate(o); !problem.empty())
+    throw std::invalid_argument("BalloonOptions: " + problem);
 }
 
 }  // namespace sonomesh::segment::internal
+
+namespace sonomesh::segment {
+
+std::string validate(const BalloonOptions& o) {
+  if (!(o.time_step > 0.0f)) return "time_step must be > 0";
+  if (!(o.inflation_vox > 0.0f)) return "inflation_vox must be > 0";
+  if (o.time_step * o.inflation_vox > 0.5f)
+    return "time_step * inflation_vox must be <= 0.5 voxel (no wall may be jumped over)";
+  if (!(o.umbrella_weight >= 0.0f) || o.time_step * o.umbrella_weight > 1.0f)
+    return "time_step * umbrella_weight must be in [0, 1] (explicit Euler stability)";
+  if (!(o.initial_radius_vox >= 1.0f)) return "initial_radius_vox must be >= 1";
+  if (!(o.tau_cost >= 0.0f)) return "tau_cost must be >= 0 (0 = derive from the image)";
+  if (!(o.tau_cost_fraction > 0.0f && o.tau_cost_fraction < 1.0f))
+    return "tau_cost_fraction must be in (0, 1)";
+  if (!(o.climb_backstop_fraction > 0.0f && o.climb_backstop_fraction <= 1.0f))
+    return "climb_backstop_fraction must be in (0, 1]";
+  if (!(o.tau_curv > 0.0f)) return "tau_curv must be > 0";
+  if (!(o.snap_back_vox >= 0.0f) || !(o.snap_ahead_vox >= 0.0f) ||
+      !(o.snap_back_vox + o.snap_ahead_vox <= 8.0f))
+    return "snap_back_vox and snap_ahead_vox must be >= 0 with a sum <= 8";
+  if (!(o.snap_min_slope >= 0.0f)) return "snap_min_slope must be >= 0";
+  if (!(o.cost_window_vox >= 0.0f)) return "cost_window_vox must be >= 0 (0 = plain sum)";
+  if (!(o.target_edge_vox > 0.0f)) return "target_edge_vox must be > 0";
+  if (o.remesh_every_iterations < 1) return "remesh_every_iterations must be >= 1";
+  if (o.max_iterations < 1) return "max_iterations must be >= 1";
+  if (!(o.max_area_fraction > 0.0f)) return "max_area_fraction must be > 0";
+  if (o.stall_window_iterations < 1) return "stall_window_iterations must be >= 1";
+  if (o.threads < 0) return "threads must be >= 0";
+  return {};
+}
+
+}  // namespace sonomesh::segment

@@ -137,6 +137,37 @@ TEST(RunOptions, EveryOptionHasDocAndItsDefaultPassesItsOwnCheck) {
   EXPECT_NE(validate(c)->find("initial_radius_vox"), std::string::npos);
 }
 
+// Each balloon option at the edges of its range and just inside them: a value the loader takes is
+// one the balloon's own check (segment::validate) takes, so a configuration that loads runs.
+TEST(RunOptions, WhatLoadsTheBalloonAccepts) {
+  int loaded = 0;
+  for (const OptionSpec& spec : run_options()) {
+    const bool number = spec.kind == OptionKind::Number || spec.kind == OptionKind::Integer;
+    if (std::string(spec.table) != "pipeline.balloon" || !number) continue;
+    const OptionRange& r = spec.range;
+    std::vector<double> values{r.lo, r.hi};
+    if (spec.kind == OptionKind::Number)
+      for (double f : {1e-3, 0.5, 1.0 - 1e-3}) values.push_back(r.lo + f * (r.hi - r.lo));
+    for (const double v : values) {
+      RunConfig c;
+      const std::string text =
+          "[pipeline.balloon]\n" + std::string(spec.key) + " = " + option_toml(v) + "\n";
+      if (const auto err = load_config_text(text, "f.toml", c)) {
+        EXPECT_NE(err->find(spec.key), std::string::npos) << *err;
+        continue;
+      }
+      ++loaded;
+      EXPECT_EQ(sonomesh::segment::validate(c.pipeline.balloon), "") << text;
+    }
+  }
+  EXPECT_GT(loaded, 40);
+  // Each in range alone, not together: refused at load with the balloon's own words.
+  RunConfig c;
+  const auto err = load_config_text("[pipeline.balloon]\ntime_step = 2\n", "f.toml", c);
+  ASSERT_TRUE(err.has_value());
+  EXPECT_NE(err->find("pipeline.balloon: time_step * inflation_vox"), std::string::npos) << *err;
+}
+
 TEST(RunOptions, TargetAndIgtlLoadAndPrint) {
   RunConfig c;
   ASSERT_FALSE(
