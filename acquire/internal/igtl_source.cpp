@@ -59,21 +59,13 @@ class IgtlSource final : public Source {
         if (!reconnect(deadline)) return timeout_error();
         continue;
       }
-      pollfd fds[2] = {{fd_, POLLIN, 0}, {waker_.fd(), POLLIN, 0}};
-      const int n = ::poll(fds, 2, Waker::poll_ms(deadline));
-      if (n < 0 && errno != EINTR) {
+      const SocketWait wait = wait_readable(fd_, waker_, deadline);
+      if (wait == SocketWait::Failed) {
         return tl::make_unexpected(error(AcquireError::Code::IoError,
                                          std::string("poll: ") + std::strerror(errno), {}, errno));
       }
-      if (n > 0 && (fds[1].revents & POLLIN)) {
-        waker_.drain();
-        return timeout_error();
-      }
-      if (n > 0 && fds[0].revents != 0) {
-        receive();
-        continue;
-      }
-      if (Clock::now() >= deadline) return timeout_error();
+      if (wait == SocketWait::Timeout) return timeout_error();
+      receive();
     }
   }
 
@@ -97,20 +89,13 @@ class IgtlSource final : public Source {
     fd_ = -1;
   }
 
-  // One connect attempt when the backoff allows it; false if the caller should return Timeout.
+  // One reconnect step; false if the caller should return Timeout.
   bool reconnect(Clock::time_point deadline) {
-    if (backoff_.due()) {
-      auto fd = connect_stream(endpoint_,
-                               std::min(deadline, Clock::now() + options_.connect_timeout), waker_);
-      if (fd) {
-        adopt(*fd);
-        backoff_.succeeded();
-        return true;
-      }
-      backoff_.failed();
-    }
-    if (Clock::now() >= deadline) return false;
-    return !waker_.sleep_until(std::min(deadline, backoff_.next_attempt()));
+    const std::optional<int> fd =
+        reconnect_step(endpoint_, backoff_, waker_, deadline, options_.connect_timeout);
+    if (!fd) return false;
+    if (*fd >= 0) adopt(*fd);
+    return true;
   }
 
   void receive() {

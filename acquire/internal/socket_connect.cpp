@@ -7,6 +7,7 @@
 #include <sys/un.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cerrno>
 #include <cstring>
 
@@ -98,6 +99,36 @@ tl::expected<int, AcquireError> connect_stream(const Endpoint& endpoint, Clock::
   }
   ::freeaddrinfo(list);
   return result;
+}
+
+std::optional<int> reconnect_step(const Endpoint& endpoint, Backoff& backoff, Waker& waker,
+                                  Clock::time_point deadline,
+                                  std::chrono::milliseconds connect_timeout) {
+  if (backoff.due()) {
+    auto fd = connect_stream(endpoint, std::min(deadline, Clock::now() + connect_timeout), waker);
+    if (fd) {
+      backoff.succeeded();
+      return *fd;
+    }
+    backoff.failed();
+  }
+  if (Clock::now() >= deadline || waker.sleep_until(std::min(deadline, backoff.next_attempt())))
+    return std::nullopt;
+  return -1;
+}
+
+SocketWait wait_readable(int fd, Waker& waker, Clock::time_point deadline) {
+  for (;;) {
+    pollfd fds[2] = {{fd, POLLIN, 0}, {waker.fd(), POLLIN, 0}};
+    const int n = ::poll(fds, 2, Waker::poll_ms(deadline));
+    if (n < 0 && errno != EINTR) return SocketWait::Failed;
+    if (n > 0 && (fds[1].revents & POLLIN)) {
+      waker.drain();
+      return SocketWait::Timeout;
+    }
+    if (n > 0 && fds[0].revents != 0) return SocketWait::Readable;
+    if (Clock::now() >= deadline) return SocketWait::Timeout;
+  }
 }
 
 }  // namespace sonomesh::acquire::internal

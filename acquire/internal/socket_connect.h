@@ -31,4 +31,17 @@ tl::expected<int, AcquireError> connect_stream(const Endpoint& endpoint,
                                                std::chrono::steady_clock::time_point deadline,
                                                Waker& waker);
 
+/// One reconnect step of a socket source: a connect attempt when `backoff` is due (until
+/// `deadline`, at most `connect_timeout`), else a wait for the next attempt. The connected
+/// descriptor; -1: try again; nullopt: the deadline passed or the waker woke (a Timeout).
+std::optional<int> reconnect_step(const Endpoint& endpoint, Backoff& backoff, Waker& waker,
+                                  std::chrono::steady_clock::time_point deadline,
+                                  std::chrono::milliseconds connect_timeout);
+
+enum class SocketWait { Readable, Timeout, Failed };
+
+/// Waits for input on `fd` until `deadline` or a wake of the waker (then drained): Timeout.
+/// Failed leaves errno as poll set it.
+SocketWait wait_readable(int fd, Waker& waker, std::chrono::steady_clock::time_point deadline);
+
 }  // namespace sonomesh::acquire::internal

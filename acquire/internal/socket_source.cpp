@@ -59,36 +59,18 @@ class SocketSource final : public Source {
         return std::move(*r);
       }
       if (fd_ < 0) {
-        if (backoff_.due()) {
-          auto fd = connect_stream(
-              endpoint_, std::min(deadline, Clock::now() + options_.connect_timeout), waker_);
-          if (fd) {
-            fd_ = *fd;
-            backoff_.succeeded();
-            continue;
-          }
-          backoff_.failed();
-        }
-        if (Clock::now() >= deadline ||
-            waker_.sleep_until(std::min(deadline, backoff_.next_attempt()))) {
-          return timeout_error();
-        }
+        const std::optional<int> fd =
+            reconnect_step(endpoint_, backoff_, waker_, deadline, options_.connect_timeout);
+        if (!fd) return timeout_error();
+        fd_ = *fd;
         continue;
       }
-      pollfd fds[2] = {{fd_, POLLIN, 0}, {waker_.fd(), POLLIN, 0}};
-      const int n = ::poll(fds, 2, Waker::poll_ms(deadline));
-      if (n < 0 && errno != EINTR) {
+      const SocketWait wait = wait_readable(fd_, waker_, deadline);
+      if (wait == SocketWait::Failed) {
         return tl::make_unexpected(os_error(AcquireError::Code::IoError, errno, "poll"));
       }
-      if (n > 0 && (fds[1].revents & POLLIN)) {
-        waker_.drain();
-        return timeout_error();
-      }
-      if (n > 0 && fds[0].revents != 0) {
-        receive();
-        continue;
-      }
-      if (Clock::now() >= deadline) return timeout_error();
+      if (wait == SocketWait::Timeout) return timeout_error();
+      receive();
     }
   }
 

@@ -11,6 +11,7 @@
 #include <sstream>
 
 #include "reconstruct/reconstruct.h"
+#include "tests/temp_dir.h"
 
 using namespace sonomesh;
 using volume::Mat3f;
@@ -19,15 +20,9 @@ using volume::Vec3i;
 using volume::Volume;
 namespace fs = std::filesystem;
 
-namespace {
+using sonomesh::testing::TempDir;
 
-struct TempDir {
-  fs::path path =
-      fs::temp_directory_path() / ("sonomesh_outputs_" + std::to_string(::getpid()) + "_" +
-                                   ::testing::UnitTest::GetInstance()->current_test_info()->name());
-  TempDir() { fs::create_directories(path); }
-  ~TempDir() { fs::remove_all(path); }
-};
+namespace {
 
 std::string slurp(const fs::path& p) {
   std::ifstream in(p, std::ios::binary);

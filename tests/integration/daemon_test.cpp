@@ -20,6 +20,7 @@
 
 #include <nlohmann/json.hpp>
 
+#include "child_process.h"
 #include "daemon/internal/atomic_file.h"
 #include "daemon/internal/run_config.h"
 #include "igtl_test_client.h"
@@ -30,131 +31,9 @@
 // Last: <httplib.h> pulls in <resolv.h>, whose `_res` macro breaks Eigen headers included after it.
 #include <httplib.h>
 
-extern char** environ;
-
-namespace fs = std::filesystem;
-using namespace std::chrono_literals;
-using Clock = std::chrono::steady_clock;
+using namespace sonomesh::testing;
 
 namespace {
-
-// A scratch directory, removed at the end of a test that passed (kept for inspection otherwise).
-class ScratchDir {
- public:
-  explicit ScratchDir(const std::string& name)
-      // Short: unix socket paths are limited to 107 bytes.
-      : path_(fs::path("/tmp") / ("smi_" + name + "_" + std::to_string(::getpid()))) {
-    fs::remove_all(path_);
-    fs::create_directories(path_);
-  }
-  ~ScratchDir() {
-    if (!::testing::Test::HasFailure()) {
-      std::error_code ec;
-      fs::remove_all(path_, ec);
-    }
-  }
-  operator const fs::path&() const { return path_; }
-  fs::path operator/(const std::string& part) const { return path_ / part; }
-
- private:
-  fs::path path_;
-};
-
-// A child process with stdout/stderr in files; killed (SIGKILL) if still running at destruction.
-class Child {
- public:
-  Child(const std::vector<std::string>& argv, const fs::path& log_prefix) {
-    posix_spawn_file_actions_t actions;
-    posix_spawn_file_actions_init(&actions);
-    const std::string out = log_prefix.string() + ".out", err = log_prefix.string() + ".err";
-    posix_spawn_file_actions_addopen(&actions, 1, out.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
-    posix_spawn_file_actions_addopen(&actions, 2, err.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
-    std::vector<char*> args;
-    for (const auto& a : argv) args.push_back(const_cast<char*>(a.c_str()));
-    args.push_back(nullptr);
-    // The test runner may have signals blocked or ignored; the child must start with defaults.
-    posix_spawnattr_t attr;
-    posix_spawnattr_init(&attr);
-    sigset_t none, all;
-    sigemptyset(&none);
-    sigfillset(&all);
-    posix_spawnattr_setsigmask(&attr, &none);
-    posix_spawnattr_setsigdefault(&attr, &all);
-    posix_spawnattr_setflags(&attr, POSIX_SPAWN_SETSIGMASK | POSIX_SPAWN_SETSIGDEF);
-    const int rc = posix_spawn(&pid_, args[0], &actions, &attr, args.data(), environ);
-    posix_spawn_file_actions_destroy(&actions);
-    posix_spawnattr_destroy(&attr);
-    if (rc != 0) pid_ = -1;
-    err_path_ = err;
-  }
-  ~Child() {
-    if (pid_ > 0 && !exited_) {
-      ::kill(pid_, SIGKILL);
-      int status;
-      ::waitpid(pid_, &status, 0);
-    }
-  }
-  pid_t pid() const { return pid_; }
-  void signal(int sig) { ::kill(pid_, sig); }
-  // Exit code, or -signal, or nullopt if still running after `timeout`.
-  std::optional<int> wait(std::chrono::milliseconds timeout) {
-    if (exited_) return code_;
-    const auto deadline = Clock::now() + timeout;
-    while (true) {
-      int status = 0;
-      const pid_t r = ::waitpid(pid_, &status, WNOHANG);
-      if (r == pid_) {
-        exited_ = true;
-        code_ = WIFEXITED(status) ? WEXITSTATUS(status) : -WTERMSIG(status);
-        return code_;
-      }
-      if (Clock::now() > deadline) return std::nullopt;
-      std::this_thread::sleep_for(20ms);
-    }
-  }
-  bool running() {
-    if (exited_) return false;
-    return !wait(0ms).has_value();
-  }
-  std::string stderr_text() const {
-    std::ifstream in(err_path_);
-    return std::string((std::istreambuf_iterator<char>(in)), {});
-  }
-  // Resident set size in kB from /proc (0 if gone).
-  long rss_kb() const {
-    std::ifstream in("/proc/" + std::to_string(pid_) + "/status");
-    std::string line;
-    while (std::getline(in, line)) {
-      if (line.rfind("VmRSS:", 0) == 0) return std::stol(line.substr(6));
-    }
-    return 0;
-  }
-
- private:
-  pid_t pid_ = -1;
-  bool exited_ = false;
-  int code_ = 0;
-  std::string err_path_;
-};
-
-std::vector<nlohmann::json> read_jsonl(const fs::path& path) {
-  std::vector<nlohmann::json> lines;
-  std::ifstream in(path);
-  std::string line;
-  while (std::getline(in, line)) {
-    if (!line.empty()) lines.push_back(nlohmann::json::parse(line));
-  }
-  return lines;
-}
-
-bool wait_until(const std::function<bool()>& ready, std::chrono::milliseconds timeout) {
-  const auto deadline = Clock::now() + timeout;
-  while (Clock::now() < deadline) {
-    if (ready()) return true;
-    std::this_thread::sleep_for(20ms);
-  }
-  return ready();
-}
 
 // Journal checks shared by every test: one line per sequence number, no sequence twice, the
 // fields the design asks for. Returns sequence -> line.

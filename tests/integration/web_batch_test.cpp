@@ -6,11 +6,11 @@
 #include <map>
 #include <set>
 
-#include "web_test_util.h"
+#include "child_process.h"
 
 namespace {
 
-using namespace webtest;
+using namespace sonomesh::testing;
 
 // Three distinct 48³ phantoms from probe-sim, each copied under many names (the batch does not
 // care that inputs repeat; their ids differ).
@@ -20,7 +20,7 @@ void make_manifest(const fs::path& dir, int good, const fs::path& manifest) {
   std::vector<fs::path> sources;
   for (const auto& [phantom, seed] : kinds) {
     const fs::path vol = dir / (phantom + std::to_string(seed) + ".nrrd");
-    Process gen({PROBE_SIM_EXE, "generate", "--phantom", phantom, "--size", "48", "--seed",
+    Child gen({PROBE_SIM_EXE, "generate", "--phantom", phantom, "--size", "48", "--seed",
                  std::to_string(seed), "--out", vol.string(), "--truth",
                  (dir / ("truth" + std::to_string(seed) + ".nrrd")).string()},
                 dir / "gen");
@@ -61,18 +61,18 @@ std::map<std::string, nlohmann::json> results_by_id(const fs::path& path) {
   return by_id;
 }
 
-Process batch(const Scratch& dir, const std::vector<std::string>& extra, const std::string& log) {
+Child batch(const ScratchDir& dir, const std::vector<std::string>& extra, const std::string& log) {
   std::vector<std::string> argv = {SONOMESHD_EXE, "batch",
                                    "--manifest",  (dir / "manifest.jsonl").string(),
                                    "--out",       (dir / "out").string()};
   argv.insert(argv.end(), extra.begin(), extra.end());
-  return Process(argv, dir / log);
+  return Child(argv, dir / log);
 }
 
 TEST(Batch, ThirtyInputsTwoBadGiveTwentyEightResultsAndTwoFailures) {
-  Scratch dir("batch30");
+  ScratchDir dir("batch30");
   make_manifest(dir.path(), 28, dir / "manifest.jsonl");
-  Process run = batch(dir, {"--jobs", "2"}, "run");
+  Child run = batch(dir, {"--jobs", "2"}, "run");
   ASSERT_EQ(run.wait(300s), 0) << run.stderr_text();
   const auto results = results_by_id(dir / "out" / "results.jsonl");
   ASSERT_EQ(results.size(), 30u);
@@ -98,11 +98,11 @@ TEST(Batch, ThirtyInputsTwoBadGiveTwentyEightResultsAndTwoFailures) {
 }
 
 TEST(Batch, KilledHalfWayResumesWithoutRedoingFinishedLines) {
-  Scratch dir("batchkill");
+  ScratchDir dir("batchkill");
   make_manifest(dir.path(), 28, dir / "manifest.jsonl");
   const fs::path results_path = dir / "out" / "results.jsonl";
   {
-    Process run = batch(dir, {"--jobs", "1"}, "first");
+    Child run = batch(dir, {"--jobs", "1"}, "first");
     ASSERT_TRUE(wait_until([&] { return raw_lines(results_path).size() >= 6; }, 300s));
     run.signal(SIGKILL);
     run.wait(10s);
@@ -115,7 +115,7 @@ TEST(Batch, KilledHalfWayResumesWithoutRedoingFinishedLines) {
     if (line["status"] == "processed")
       written[id] = fs::last_write_time(dir / "out" / (id + ".ply"));
   }
-  Process rerun = batch(dir, {"--jobs", "2"}, "rerun");
+  Child rerun = batch(dir, {"--jobs", "2"}, "rerun");
   ASSERT_EQ(rerun.wait(300s), 0) << rerun.stderr_text();
   EXPECT_NE(rerun.stderr_text().find(std::to_string(before.size()) + " already done"),
             std::string::npos)
@@ -129,10 +129,10 @@ TEST(Batch, KilledHalfWayResumesWithoutRedoingFinishedLines) {
 }
 
 TEST(Batch, IndexRunsOneLineAndParallelIndexRunsKeepResultsWhole) {
-  Scratch dir("batchidx");
+  ScratchDir dir("batchidx");
   make_manifest(dir.path(), 6, dir / "manifest.jsonl");
   {
-    Process one = batch(dir, {"--index", "3"}, "one");
+    Child one = batch(dir, {"--index", "3"}, "one");
     ASSERT_EQ(one.wait(120s), 0) << one.stderr_text();
     const auto results = results_by_id(dir / "out" / "results.jsonl");
     ASSERT_EQ(results.size(), 1u);
@@ -141,8 +141,8 @@ TEST(Batch, IndexRunsOneLineAndParallelIndexRunsKeepResultsWhole) {
   }
   // Indices 0-2, 4-7 two at a time, and index 5 twice at once: one line per id, none torn.
   for (const auto& [a, b] : std::vector<std::pair<int, int>>{{0, 1}, {2, 4}, {5, 5}, {6, 7}}) {
-    Process pa = batch(dir, {"--index", std::to_string(a)}, "p" + std::to_string(a));
-    Process pb = batch(dir, {"--index", std::to_string(b)}, "q" + std::to_string(b));
+    Child pa = batch(dir, {"--index", std::to_string(a)}, "p" + std::to_string(a));
+    Child pb = batch(dir, {"--index", std::to_string(b)}, "q" + std::to_string(b));
     ASSERT_EQ(pa.wait(120s), 0) << pa.stderr_text();
     ASSERT_EQ(pb.wait(120s), 0) << pb.stderr_text();
   }
@@ -151,15 +151,15 @@ TEST(Batch, IndexRunsOneLineAndParallelIndexRunsKeepResultsWhole) {
   for (const std::string& text : raw_lines(dir / "out" / "results.jsonl")) {
     EXPECT_FALSE(text.empty());
   }
-  Process out_of_range = batch(dir, {"--index", "8"}, "range");
+  Child out_of_range = batch(dir, {"--index", "8"}, "range");
   EXPECT_EQ(out_of_range.wait(30s), 2);
 }
 
 TEST(Batch, BadManifestExitsTwoNamingTheLine) {
-  Scratch dir("batchbad");
+  ScratchDir dir("batchbad");
   std::ofstream(dir / "manifest.jsonl") << "{\"input\": \"a.nrrd\", \"seed_mm\": [1, 2, 3]}\n"
                                         << "{\"input\": \"b.nrrd\"}\n";
-  Process run = batch(dir, {}, "run");
+  Child run = batch(dir, {}, "run");
   EXPECT_EQ(run.wait(30s), 2);
   EXPECT_NE(run.stderr_text().find("manifest.jsonl:2:"), std::string::npos) << run.stderr_text();
   EXPECT_FALSE(fs::exists(dir / "out" / "results.jsonl"));

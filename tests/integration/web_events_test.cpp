@@ -5,14 +5,14 @@
 #include <map>
 
 #include "daemon/internal/event_hub.h"
-#include "web_test_util.h"
+#include "child_process.h"
 
 // Last: <httplib.h> pulls in <resolv.h>, whose `_res` macro breaks Eigen headers included after it.
 #include <httplib.h>
 
 namespace {
 
-using namespace webtest;
+using namespace sonomesh::testing;
 using sonomesh::daemon::EventHub;
 using sonomesh::daemon::EventStream;
 
@@ -69,8 +69,8 @@ std::vector<std::string> journal_lines(const fs::path& path) {
 }
 
 TEST(LiveEvents, OneEventPerJournalLineInOrderAndResumesAfterLastEventId) {
-  Scratch dir("sse");
-  Process daemon({SONOMESHD_EXE, "run", "--source", "sim:sphere?rate=10&size=48", "--out",
+  ScratchDir dir("sse");
+  Child daemon({SONOMESHD_EXE, "run", "--source", "sim:sphere?rate=10&size=48", "--out",
                   (dir / "out").string(), "--http", "127.0.0.1:0"},
                  dir / "daemon");
   const int port = http_port_of(dir / "out");
@@ -115,7 +115,7 @@ TEST(LiveEvents, HubFramesResumesAndEndsStreams) {
             "e2-5");
   EXPECT_EQ(sonomesh::daemon::event_id_of(nlohmann::json{{"sequence", nullptr}}, 9), "r9");
 
-  Scratch dir("hub");
+  ScratchDir dir("hub");
   EventHub hub(
       dir / "journal.jsonl",
       [] {

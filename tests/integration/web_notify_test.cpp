@@ -11,14 +11,14 @@
 #include <mutex>
 
 #include "daemon/internal/notifier.h"
-#include "web_test_util.h"
+#include "child_process.h"
 
 // Last: <httplib.h> pulls in <resolv.h>, whose `_res` macro breaks Eigen headers included after it.
 #include <httplib.h>
 
 namespace {
 
-using namespace webtest;
+using namespace sonomesh::testing;
 
 // A bound AF_UNIX datagram socket collecting every message with its arrival time.
 class NotifySocket {
@@ -72,10 +72,10 @@ class NotifySocket {
 };
 
 TEST(ServiceNotify, ReadyStatusWatchdogAndStoppingFromTheDaemon) {
-  Scratch dir("notify");
+  ScratchDir dir("notify");
   NotifySocket socket(dir / "notify.sock");
   ASSERT_TRUE(socket.bound());
-  Process daemon({SONOMESHD_EXE, "run", "--source", "sim:sphere?rate=4&size=48", "--out",
+  Child daemon({SONOMESHD_EXE, "run", "--source", "sim:sphere?rate=4&size=48", "--out",
                   (dir / "out").string(), "--http", "127.0.0.1:0"},
                  dir / "daemon",
                  {"NOTIFY_SOCKET=" + (dir / "notify.sock").string(), "WATCHDOG_USEC=200000"});
@@ -111,7 +111,7 @@ TEST(ServiceNotify, ReadyStatusWatchdogAndStoppingFromTheDaemon) {
 }
 
 TEST(ServiceNotify, WithoutWatchdogSecNoPingsAndAStalledLoopStopsThem) {
-  Scratch dir("wd");
+  ScratchDir dir("wd");
   NotifySocket socket(dir / "notify.sock");
   ASSERT_TRUE(socket.bound());
   ::setenv("NOTIFY_SOCKET", (dir / "notify.sock").c_str(), 1);

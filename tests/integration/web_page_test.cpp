@@ -7,11 +7,11 @@
 #include <opencv2/imgcodecs.hpp>
 
 #include "cdp_pipe.h"
-#include "web_test_util.h"
+#include "child_process.h"
 
 namespace {
 
-using namespace webtest;
+using namespace sonomesh::testing;
 
 constexpr const char* kPageState =
     "window.sonomesh ? {events: sonomesh.events, processed: sonomesh.processed,"
@@ -47,8 +47,8 @@ TEST(LivePage, DrawsMeshAndSlicesAndUpdatesWithoutReload) {
   if (!Chromium::available()) {
     GTEST_SKIP() << "no browser: /usr/bin/chromium is not installed (scripts/setup.sh installs it)";
   }
-  Scratch dir("page");
-  Process daemon({SONOMESHD_EXE, "run", "--source", "sim:cyst-needle?rate=2&size=48", "--out",
+  ScratchDir dir("page");
+  Child daemon({SONOMESHD_EXE, "run", "--source", "sim:cyst-needle?rate=2&size=48", "--out",
                   (dir / "out").string(), "--http", "127.0.0.1:0"},
                  dir / "daemon");
   const int port = http_port_of(dir / "out");
@@ -127,9 +127,9 @@ TEST(LivePage, SaysSoWhenTheProbeIsDisconnected) {
   if (!Chromium::available()) {
     GTEST_SKIP() << "no browser: /usr/bin/chromium is not installed (scripts/setup.sh installs it)";
   }
-  Scratch dir("nosrc");
+  ScratchDir dir("nosrc");
   // A probe socket nobody serves: the daemon waits for it (state "connecting").
-  Process daemon({SONOMESHD_EXE, "run", "--source", "unix:" + (dir / "absent.sock").string(),
+  Child daemon({SONOMESHD_EXE, "run", "--source", "unix:" + (dir / "absent.sock").string(),
                   "--out", (dir / "out").string(), "--http", "127.0.0.1:0"},
                  dir / "daemon");
   const int port = http_port_of(dir / "out");

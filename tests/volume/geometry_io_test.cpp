@@ -12,21 +12,16 @@
 #include <sstream>
 #include <string>
 
+#include "tests/temp_dir.h"
 #include "volume/volume.h"
 
 using namespace sonomesh::volume;
 namespace fs = std::filesystem;
 using Code = VolumeIoError::Code;
 
-namespace {
+using sonomesh::testing::TempDir;
 
-struct TempDir {
-  fs::path path =
-      fs::temp_directory_path() / ("sonomesh_geometry_io_" + std::to_string(::getpid()) + "_" +
-                                   ::testing::UnitTest::GetInstance()->current_test_info()->name());
-  TempDir() { fs::create_directories(path); }
-  ~TempDir() { fs::remove_all(path); }
-};
+namespace {
 
 std::string read_text(const fs::path& path) {
   std::ifstream f(path, std::ios::binary);

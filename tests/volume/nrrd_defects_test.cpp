@@ -10,21 +10,16 @@
 #include <fstream>
 #include <string>
 
+#include "tests/temp_dir.h"
 #include "volume/volume.h"
 
 using namespace sonomesh::volume;
 namespace fs = std::filesystem;
 using Code = VolumeIoError::Code;
 
-namespace {
+using sonomesh::testing::TempDir;
 
-struct TempDir {
-  fs::path path =
-      fs::temp_directory_path() / ("sonomesh_nrrd_defects_" + std::to_string(::getpid()) + "_" +
-                                   ::testing::UnitTest::GetInstance()->current_test_info()->name());
-  TempDir() { fs::create_directories(path); }
-  ~TempDir() { fs::remove_all(path); }
-};
+namespace {
 
 void write_file(const fs::path& path, const std::string& bytes) {
   std::ofstream f(path, std::ios::binary | std::ios::trunc);
