@@ -60,6 +60,7 @@ StartDecision decide_start(const StartInputs& in, const StartLimits& limits) {
   if (!(in.volume_change <= limits.max_volume_change))
     return cold("volume changed " + std::to_string(static_cast<int>(100.0f * in.volume_change)) +
                 " %");
+  if (in.since_refused < limits.refused_backoff_volumes) return cold("warm start refused recently");
   return {true, "previous balloon"};
 }
 

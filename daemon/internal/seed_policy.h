@@ -67,12 +67,17 @@ struct StartInputs {
   bool same_grid = false;            // the new volume's grid (dims, spacing, origin) is the last's
   float motion_vox = 0.0f;           // how far the result's centroid moved between the last two
   float volume_change = 0.0f;        // |ΔV| / V of the enclosed volume between the last two
+  int since_refused = 1 << 30;       // volumes since the pipeline's check last refused a warm start
 };
 
 /// Beyond these the previous balloon says too little about the new volume.
 struct StartLimits {
   float max_motion_vox = 6.0f;      // a probe moved, not a breath (breathing: < 1 voxel a volume)
   float max_volume_change = 0.25f;  // the target changed shape, or the result did
+  // After a refused warm start, this many volumes start cold without trying: a refused attempt
+  // costs its checks on top of the cold start, and a target the check refuses (the seam behind
+  // a needle) is refused again on the next volume.
+  int refused_backoff_volumes = 8;
 };
 
 struct StartDecision {

@@ -162,6 +162,7 @@ void Worker::process(QueuedVolume item) {
     return fail(item, std::string("pipeline: ") + e.what(), std::move(line));
   }
   if (!start.warm) result.start_reason = start.reason;  // (a refused warm start says why itself)
+  since_refused_ = start.warm && !result.warm_start ? 0 : std::min(since_refused_, 1 << 29) + 1;
   line["start"] = result.warm_start ? "warm" : "cold";
   line["start_reason"] = result.warm_start ? start.reason : result.start_reason;
   nlohmann::json& timings = line["timings_ms"];
@@ -219,6 +220,7 @@ StartDecision Worker::choose_start(const volume::Volume& input, const SeedCandid
     in.motion_vox = previous_->motion_vox;
     in.volume_change = previous_->volume_change;
   }
+  in.since_refused = since_refused_;
   return decide_start(in);
 }
 

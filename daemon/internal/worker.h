@@ -71,6 +71,7 @@ class Worker {
   bool seed_overridden_ = false;  // the last pick_seed used an override
   std::optional<Vec3f> last_centroid_mm_;  // of the last result (its motion, for the next)
   double last_volume_ml_ = 0.0;
+  int since_refused_ = 1 << 30;  // volumes since the pipeline last refused a warm start
   std::function<void()> turn_hook_;
 
   std::mutex override_mutex_;  // the one-slot mailbox from the HTTP and signal threads

@@ -261,6 +261,11 @@ TEST(SeedPolicy, DecideStartColdForEachFailedCondition) {
   EXPECT_EQ(cold_reason([](StartInputs& in) { in.motion_vox = 7.0f; }).rfind("moved", 0), 0u);
   EXPECT_EQ(cold_reason([](StartInputs& in) { in.volume_change = 0.4f; }),
             "volume changed 40 %");
+  EXPECT_EQ(cold_reason([](StartInputs& in) { in.since_refused = 3; }),
+            "warm start refused recently");
+  StartInputs after_backoff = warm_inputs();
+  after_backoff.since_refused = StartLimits{}.refused_backoff_volumes;
+  EXPECT_TRUE(decide_start(after_backoff).warm);
   // NaN motion (a degenerate centroid) is not "small".
   EXPECT_FALSE(decide_start({.have_previous = true, .previous_quality_ok = true,
                              .seed_tracked = true, .same_grid = true,
