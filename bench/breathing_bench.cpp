@@ -2,12 +2,15 @@
 // reused buffers (as the daemon's worker runs it): per volume the reconstruction grid, the FFTW
 // plans made for it, the reconstruct stage's time, genus and Dice against the truth.
 //   breathing_bench [--phantom cyst-needle] [--size 128] [--spacing 0.4] [--volumes 40]
-//                   [--rate 10] [--quiet]
+//                   [--rate 10] [--warm] [--quiet]
+// --warm: each volume's balloon starts from the previous one's (daemon::WarmStart, 2 voxels in)
+// and the seed is the previous deepest point, as the daemon's worker runs it (issue 17).
 // A breathing target should land on a handful of grid sizes, so plans stop being made after the
 // first few volumes (issue 17).
 #include <CLI/CLI.hpp>
 #include <algorithm>
 #include <cstdio>
+#include <optional>
 #include <set>
 #include <string>
 #include <tuple>
@@ -24,32 +27,42 @@ int main(int argc, char** argv) {
   std::string phantom = "cyst-needle";
   int size_vox = 128, volumes = 40;
   float spacing_mm = 0.4f, rate_hz = 10.0f;
-  bool quiet = false;
+  bool quiet = false, warm_start = false;
   app.add_option("--phantom", phantom);
   app.add_option("--size", size_vox)->check(CLI::Range(16, 512));
   app.add_option("--spacing", spacing_mm)->check(CLI::PositiveNumber);
   app.add_option("--volumes", volumes)->check(CLI::Range(1, 1000));
   app.add_option("--rate", rate_hz)->check(CLI::PositiveNumber);
   app.add_flag("--quiet", quiet, "summary only");
+  app.add_flag("--warm", warm_start, "warm start from the previous volume's balloon");
   CLI11_PARSE(app, argc, argv);
 
   daemon::PipelineConfig config;
   daemon::PipelineBuffers buffers;
   std::set<std::tuple<int, int, int>> grids;
-  std::vector<double> reconstruct_ms, total_ms;
+  std::vector<double> reconstruct_ms, total_ms, balloon_ms, labels_ms;
   double dice_min = 1.0, dice_sum = 0.0;
-  int genus_wrong = 0, failed = 0;
+  int genus_wrong = 0, failed = 0, warm_count = 0;
+  std::optional<daemon::WarmStart> warm;
+  std::optional<volume::Vec3f> tracked_mm;
   const std::size_t plans_before = reconstruct::internal::fft_plan_stats().plans_created;
   if (!quiet)
-    std::printf("%4s %-12s %7s %5s %9s %8s %5s %6s\n", "vol", "grid", "cell_mm", "plans",
-                "recon_ms", "total_ms", "genus", "dice");
+    std::printf("%4s %-12s %7s %5s %9s %8s %5s %6s %10s\n", "vol", "grid", "cell_mm", "plans",
+                "recon_ms", "total_ms", "genus", "dice", "balloon_ms");
   for (int i = 0; i < volumes; ++i) {
     const sim::Phantom p = sim::make_phantom({.phantom = phantom,
                                               .size_vox = size_vox,
                                               .spacing_mm = volume::Vec3f::Constant(spacing_mm),
                                               .time_s = float(i) / rate_hz});
     const std::size_t plans0 = reconstruct::internal::fft_plan_stats().plans_created;
-    const daemon::PipelineResult r = daemon::run_pipeline(p.image, p.seed_mm, config, buffers);
+    daemon::PipelineResult r = daemon::run_pipeline(p.image, tracked_mm.value_or(p.seed_mm), config,
+                                                    buffers, warm ? &*warm : nullptr);
+    warm.reset();
+    if (warm_start && r.ok) {
+      warm = daemon::WarmStart{r.balloon, r.balloon_stop, 2.0f * spacing_mm};
+      tracked_mm = r.deepest_interior_mm;
+    }
+    warm_count += r.warm_start;
     const std::size_t plans = reconstruct::internal::fft_plan_stats().plans_created - plans0;
     if (!r.ok || !r.labels) {
       ++failed;
@@ -63,10 +76,17 @@ int main(int argc, char** argv) {
     grids.insert({r.grid_dims.x(), r.grid_dims.y(), r.grid_dims.z()});
     reconstruct_ms.push_back(r.timings.reconstruct_ms);
     total_ms.push_back(r.timings.total_ms);
+    balloon_ms.push_back(r.timings.balloon_ms);
+    labels_ms.push_back(r.timings.labels_ms);
     if (!quiet)
-      std::printf("%4d %3dx%3dx%3d %7.3f %5zu %9.1f %8.1f %5d %6.4f\n", i, r.grid_dims.x(),
-                  r.grid_dims.y(), r.grid_dims.z(), r.grid_cell_mm, plans, r.timings.reconstruct_ms,
-                  r.timings.total_ms, r.topology.genus, dice);
+      std::printf(
+          "%4d %3dx%3dx%3d %7.3f %5zu %9.1f %8.1f %5d %6.4f %8.1f it %d vit %lld evolve "
+          "%.0f remesh %.0f %s\n",
+          i, r.grid_dims.x(), r.grid_dims.y(), r.grid_dims.z(), r.grid_cell_mm, plans,
+          r.timings.reconstruct_ms, r.timings.total_ms, r.topology.genus, dice,
+          r.timings.balloon_ms, r.balloon_iterations,
+          static_cast<long long>(r.balloon_stats.vertex_iterations), r.balloon_stats.evolve_ms,
+          r.balloon_stats.remesh_ms, r.warm_start ? "warm" : r.start_reason.c_str());
   }
   auto pct = [](std::vector<double> v, double q) {
     if (v.empty()) return 0.0;
@@ -76,10 +96,12 @@ int main(int argc, char** argv) {
   const int ok = volumes - failed;
   std::printf(
       "%s %d³ x%d: grid sizes %zu, FFTW plans %zu, reconstruct p50 %.1f p90 %.1f ms, total p50 "
-      "%.1f ms, genus wrong %d, Dice mean %.4f min %.4f, failed %d\n",
+      "%.1f ms, genus wrong %d, Dice mean %.4f min %.4f, failed %d\n"
+      "  warm starts %d of %d, balloon p50 %.1f ms, labels+deepest p50 %.1f ms\n",
       phantom.c_str(), size_vox, volumes, grids.size(),
       reconstruct::internal::fft_plan_stats().plans_created - plans_before,
       pct(reconstruct_ms, 0.5), pct(reconstruct_ms, 0.9), pct(total_ms, 0.5), genus_wrong,
-      ok > 0 ? dice_sum / ok : 0.0, dice_min, failed);
+      ok > 0 ? dice_sum / ok : 0.0, dice_min, failed, warm_count, volumes, pct(balloon_ms, 0.5),
+      pct(labels_ms, 0.5));
   return failed == 0 ? 0 : 1;
 }

@@ -103,6 +103,11 @@ struct PipelineResult {
   float speckle_grain_mm = 0.0f;
   float smooth_sigma_mm = 0.0f;
 
+  /// The balloon started from a warm start's mesh (false: from the sphere at the seed), and why
+  /// a warm start that was asked for was not used (the pipeline's safety check said so).
+  bool warm_start = false;
+  std::string start_reason;
+
   StageTimings timings;
   std::optional<volume::Volume> labels;     // UInt8 on the input grid, inside = 1
   std::optional<volume::Volume> indicator;  // Float32 χ − iso on the reconstruction grid
@@ -130,6 +135,21 @@ struct PipelineBuffers {
 PipelineResult run_pipeline(const volume::Volume& input, const Vec3f& seed_mm,
                             const PipelineConfig& config, PipelineBuffers& buffers,
                             std::stop_token stop = {});
+
+/// A warm start (issue 17): the previous volume's balloon (grid frame mm, closed, genus 0; not
+/// the reconstructed surface, which may have a tunnel) and how far to move it inward first.
+struct WarmStart {
+  segment::Mesh balloon;
+  std::vector<segment::StopReason> balloon_stop;  // per vertex: its walls must still be there
+  float inset_mm = 0.0f;  // raised to at least 2 voxels (segment::WarmStartOptions)
+};
+
+/// Same, the balloon starting from `warm` when it is given and safe on this volume
+/// (segment::inflate_balloon_from), else from the small sphere at the seed; the result says
+/// which (`warm_start`, and `start_reason` when a given warm start was not safe).
+PipelineResult run_pipeline(const volume::Volume& input, const Vec3f& seed_mm,
+                            const PipelineConfig& config, PipelineBuffers& buffers,
+                            const WarmStart* warm, std::stop_token stop = {});
 
 /// Why `seed_mm` cannot start a balloon in `input` (outside the volume, or, for a dark target, in
 /// bright tissue: the local mean around it is above the volume's Otsu threshold between dark target

@@ -17,6 +17,7 @@
 #include <array>
 #include <cstddef>
 #include <cstdint>
+#include <span>
 #include <stop_token>
 #include <string>
 #include <vector>
@@ -94,7 +95,8 @@ struct BalloonStats {
   float seed_sigma = 0.0f;           // its standard deviation
   float tissue_level = 0.0f;         // estimated surrounding tissue level (ray sampling)
   float noise_rise_per_mm = 0.0f;    // ρ, grey levels per mm
-  float initial_radius_mm = 0.0f;
+  float initial_radius_mm = 0.0f;     // the sphere's (0 for a warm start)
+  bool warm_start = false;             // started from a given mesh (inflate_balloon_from)
   int remesh_passes = 0;
   int splits = 0;
   int collapses = 0;
@@ -119,6 +121,9 @@ struct BalloonResult {
   BalloonStats stats;
   bool converged = false;  // every vertex stopped, or the evolution stalled
   std::string error;       // non-empty: why there is no balloon (mesh empty then)
+  // inflate_balloon_from only: the start mesh was not safe on this volume (error says why); the
+  // caller cold-starts with inflate_balloon.
+  bool start_unsafe = false;
 };
 
 /// Inflates the balloon from `seed_mm` in a volume the caller has already smoothed (method.md
@@ -132,6 +137,28 @@ struct BalloonResult {
 BalloonResult inflate_balloon(const volume::Volume& smoothed, const volume::Gradient& gradient,
                               const Vec3f& seed_mm, const BalloonOptions& options = {},
                               std::stop_token stop = {});
+
+/// How a warm start moves the previous balloon inward before starting from it.
+struct WarmStartOptions {
+  float inset_mm = 0.0f;  // along the vertex normals; at least 2 voxels (raised to that)
+  // The start mesh's stop reasons (the previous balloon's): each wall it stopped at must still
+  // be within inset_mm (more than 10 % gone: not safe). Empty: not checked.
+  std::span<const StopReason> start_stop;
+};
+
+/// The warm start (issue 17): the balloon starts from `start_mesh` (the previous volume's
+/// balloon, closed and genus 0; not a reconstructed surface, which may have a tunnel) instead of
+/// the small sphere at the seed. The walls it stopped at must still be there (start_stop); the
+/// mesh is smoothed lightly, moved `inset_mm` inward along its
+/// vertex normals and remeshed to the target edge length; then every vertex and edge midpoint
+/// must lie inside the volume and below the cost rule's wall level (the seed region's, from
+/// `seed_mm`, as in a cold start). A start that fails is not used: the result has
+/// `start_unsafe` and `error` set and an empty mesh. A_t starts empty (a withdrawn needle's
+/// tunnel is not carried from the old volume). Otherwise as inflate_balloon, same throws.
+BalloonResult inflate_balloon_from(const volume::Volume& smoothed, const volume::Gradient& gradient,
+                                   const Mesh& start_mesh, const Vec3f& seed_mm,
+                                   const BalloonOptions& options = {},
+                                   const WarmStartOptions& warm = {}, std::stop_token stop = {});
 
 /// Limits of the second pass (reinflate).
 struct ReinflateOptions {

@@ -46,6 +46,9 @@ struct PhantomSpec {
   // 30 degrees below lateral, as a needle guided into the beam; a needle along the beam (z) would
   // cast its shadow into itself and show nothing a probe could see.
   Vec3f needle_axis{0.866f, 0.0f, 0.5f};
+  // cyst-needle only: false leaves the needle out (withdrawn, or not yet inserted): the cyst
+  // alone, genus 0. A stream switches it at some volume to change the topology.
+  bool needle = true;
   Realism realism = Realism::Simple;
   // Echo only: speckle grain, the Gaussian sigma in mm of the speckle's lateral correlation (axial:
   // half of it, as a pulse is shorter than a beam is wide). Simple mode uses 1.0/0.6 voxel.

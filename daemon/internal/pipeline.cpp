@@ -1,12 +1,13 @@
 // The per-volume pipeline (method.md §0-6): smooth -> balloon -> opening -> Kazhdan FFT
 // reconstruction -> marching cubes -> topology, labels, deepest interior point.
+#include "daemon/pipeline.h"
+
 #include <algorithm>
 #include <chrono>
 #include <vector>
 
 #include "daemon/internal/metrics.h"
 #include "daemon/internal/target_image.h"
-#include "daemon/pipeline.h"
 
 namespace sonomesh::daemon {
 namespace {
@@ -23,11 +24,21 @@ constexpr std::size_t kMinSamples = 20;
 
 void count_stops(const std::vector<segment::StopReason>& stop, StopCounts& counts) {
   for (segment::StopReason reason : stop) switch (reason) {
-      case segment::StopReason::Moving: ++counts.moving; break;
-      case segment::StopReason::Boundary: ++counts.boundary; break;
-      case segment::StopReason::Curvature: ++counts.curvature; break;
-      case segment::StopReason::SelfIntersection: ++counts.self_intersection; break;
-      case segment::StopReason::IterationLimit: ++counts.iteration_limit; break;
+      case segment::StopReason::Moving:
+        ++counts.moving;
+        break;
+      case segment::StopReason::Boundary:
+        ++counts.boundary;
+        break;
+      case segment::StopReason::Curvature:
+        ++counts.curvature;
+        break;
+      case segment::StopReason::SelfIntersection:
+        ++counts.self_intersection;
+        break;
+      case segment::StopReason::IterationLimit:
+        ++counts.iteration_limit;
+        break;
     }
 }
 
@@ -43,16 +54,20 @@ float pre_filter_sigma_mm(const volume::Volume& input, float grain_mm) {
   const float grain_vox = grain_mm / vox_mm;
   // (Above 3 mm it is not a probe's speckle either, whose grain is its resolution cell, ~0.3-1.5
   // mm: the 4.8× downsampled Philips volume reads 6.6 mm, and smoothing at that leaked.)
-  return grain_vox >= 1.75f && grain_vox <= 3.0f && grain_mm <= kMaxSpeckleGrainMm ? grain_mm : vox_mm;
+  return grain_vox >= 1.75f && grain_vox <= 3.0f && grain_mm <= kMaxSpeckleGrainMm ? grain_mm
+                                                                                   : vox_mm;
 }
 
 }  // namespace
 
 const char* to_string(TargetPolarity target) {
   switch (target) {
-    case TargetPolarity::Dark: return "dark";
-    case TargetPolarity::Bright: return "bright";
-    case TargetPolarity::Auto: return "auto";
+    case TargetPolarity::Dark:
+      return "dark";
+    case TargetPolarity::Bright:
+      return "bright";
+    case TargetPolarity::Auto:
+      return "auto";
   }
   return "dark";
 }
@@ -66,26 +81,19 @@ PipelineResult run_pipeline(const volume::Volume& input, const Vec3f& seed_mm,
 PipelineResult run_pipeline(const volume::Volume& input, const Vec3f& seed_mm,
                             const PipelineConfig& config, PipelineBuffers& buffers,
                             std::stop_token stop) {
-  const auto start = Clock::now();
-  PipelineResult result;
-  std::vector<std::uint8_t> no_data;  // (set in §0)
-  auto finish = [&](std::string error) {
-    result.ok = error.empty();
-    result.error = std::move(error);
-    internal::quality_verdict(input, no_data, seed_mm, result);
-    result.timings.total_ms = ms_since(start);
-    return std::move(result);
-  };
-  if (input.empty()) return finish("the volume is empty");
-  // The balloon's own precondition (it throws for a seed outside the volume); checked here so a
-  // tracked seed that drifted out becomes a failed volume, not an exception.
-  if (!seed_mm.allFinite() || !input.contains_mm(seed_mm))
-    return finish("the seed lies outside the volume");
+  return run_pipeline(input, seed_mm, config, buffers, nullptr, std::move(stop));
+}
 
-  // §0: what the balloon sees and its pre-filter (docs/stopping.md).
-  auto t = Clock::now();
+namespace {
+
+// §0: what the balloon sees and its pre-filter (docs/stopping.md), into `buffers`.
+void smooth_stage(const volume::Volume& input, const Vec3f& seed_mm, const PipelineConfig& config,
+                  PipelineBuffers& buffers, std::vector<std::uint8_t>& no_data,
+                  PipelineResult& result) {
+  const auto t = Clock::now();
   result.speckle_grain_mm = volume::speckle_grain_mm(input, seed_mm);
-  const float sigma_mm = config.smooth_sigma_mm.value_or(pre_filter_sigma_mm(input, result.speckle_grain_mm));
+  const float sigma_mm =
+      config.smooth_sigma_mm.value_or(pre_filter_sigma_mm(input, result.speckle_grain_mm));
   result.smooth_sigma_mm = sigma_mm;
   result.target = config.target == TargetPolarity::Auto
                       ? internal::decide_polarity(input, seed_mm, result.speckle_grain_mm)
@@ -95,17 +103,27 @@ PipelineResult run_pipeline(const volume::Volume& input, const Vec3f& seed_mm,
   volume::Volume working;
   const bool rewritten = internal::working_image(input, result.target, no_data, working);
   volume::smooth_gaussian(rewritten ? working : input, sigma_mm, buffers.smoothed);
-
   volume::central_gradient(buffers.smoothed, buffers.gradient);
-  const volume::Volume& smoothed = buffers.smoothed;
-  const volume::Gradient& gradient = buffers.gradient;
   result.timings.smooth_ms = ms_since(t);
-  if (stop.stop_requested()) return finish("stopped");
+}
 
-  // §1-3: the balloon.
-  t = Clock::now();
-  segment::BalloonResult balloon =
-      segment::inflate_balloon(smoothed, gradient, seed_mm, config.balloon, stop);
+// §1-3: the balloon, from the warm start's mesh when one is given and safe on this volume, else
+// from the small sphere at the seed (the fallback says why in start_reason).
+segment::BalloonResult balloon_stage(const PipelineBuffers& buffers, const Vec3f& seed_mm,
+                                     const PipelineConfig& config, const WarmStart* warm,
+                                     const std::stop_token& stop, PipelineResult& result) {
+  const auto t = Clock::now();
+  segment::BalloonResult balloon;
+  if (warm) {
+    balloon = segment::inflate_balloon_from(
+        buffers.smoothed, buffers.gradient, warm->balloon, seed_mm, config.balloon,
+        {.inset_mm = warm->inset_mm, .start_stop = warm->balloon_stop}, stop);
+    result.warm_start = !balloon.start_unsafe;
+    if (balloon.start_unsafe) result.start_reason = balloon.error;
+  }
+  if (!warm || balloon.start_unsafe)
+    balloon =
+        segment::inflate_balloon(buffers.smoothed, buffers.gradient, seed_mm, config.balloon, stop);
   result.timings.balloon_ms = ms_since(t);
   result.balloon = std::move(balloon.mesh);
   result.balloon_stop = std::move(balloon.stop);
@@ -113,20 +131,22 @@ PipelineResult run_pipeline(const volume::Volume& input, const Vec3f& seed_mm,
   result.balloon_converged = balloon.converged;
   result.balloon_iterations = balloon.stats.iterations;
   count_stops(result.balloon_stop, result.stop_counts);
-  if (stop.stop_requested()) return finish("stopped");
-  if (!balloon.error.empty()) return finish("balloon: " + balloon.error);
+  return balloon;
+}
 
-  // §4: opening at the self-intersections.
-  t = Clock::now();
-  const segment::PointCloud samples = reconstruct::open_balloon(result.balloon, result.balloon_stop);
+// §4-5: opening at the self-intersections, then Kazhdan's FFT reconstruction and marching cubes
+// on a grid of the volume's voxel size (finer where the opened balloon has a gap or solid too
+// thin for it: a needle's tunnel). Returns the error, empty if there is a surface.
+std::string surface_stage(const volume::Volume& input, const Vec3f& seed_mm,
+                          const PipelineConfig& config, PipelineResult& result) {
+  const auto t = Clock::now();
+  const segment::PointCloud samples =
+      reconstruct::open_balloon(result.balloon, result.balloon_stop);
   result.timings.opening_ms = ms_since(t);
   result.opened_points = static_cast<int>(samples.points.size());
   if (samples.points.size() < kMinSamples)
-    return finish("the balloon left only " + std::to_string(samples.points.size()) +
-                  " oriented points after the opening");
-
-  // §5: Kazhdan's FFT reconstruction and marching cubes, on a grid of the volume's voxel size
-  // (finer where the opened balloon has a gap or solid too thin for it: a needle's tunnel).
+    return "the balloon left only " + std::to_string(samples.points.size()) +
+           " oriented points after the opening";
   reconstruct::PoissonOptions poisson = config.poisson;
   if (config.cell_from_voxel) poisson.cell_mm = input.spacing_mm().minCoeff();
   reconstruct::SurfaceResult surface = reconstruct::reconstruct_surface(samples, seed_mm, poisson);
@@ -143,34 +163,70 @@ PipelineResult run_pipeline(const volume::Volume& input, const Vec3f& seed_mm,
     for (float& value : indicator.f32()) value -= surface.iso;  // the surface is the zero level
     result.indicator = std::move(indicator);
   }
-  if (result.mesh.triangles.empty()) return finish("the reconstruction produced no surface");
-  if (!surface.seed_enclosed)
-    return finish("the reconstructed surface does not enclose the seed");
+  if (result.mesh.triangles.empty()) return "the reconstruction produced no surface";
+  if (!surface.seed_enclosed) return "the reconstructed surface does not enclose the seed";
+  return {};
+}
 
-  // Beyond the paper: the second balloon pass from the reconstruction back to the wall. It moves
-  // vertices only, so the topology's counts stay; the enclosed volume is measured again. It needs
-  // a closed manifold (its precondition): a surface that is not one is kept as reconstructed.
-  if (config.reinflate && result.topology.manifold) {
-    t = Clock::now();
-    segment::BalloonResult second = segment::reinflate(smoothed, gradient, result.mesh, result.balloon_stats,
-                                                       config.balloon, config.reinflate_pass, stop);
-    result.timings.reinflate_ms = ms_since(t);
-    if (stop.stop_requested()) return finish("stopped");
-    result.mesh = std::move(second.mesh);
-    result.topology.volume_ml = reconstruct::enclosed_volume_ml(result.mesh);
-    result.enclosed_volume_ml = result.topology.volume_ml;
-  }
+// Beyond the paper: the second balloon pass from the reconstruction back to the wall. It moves
+// vertices only, so the topology's counts stay; the enclosed volume is measured again. It needs
+// a closed manifold (its precondition): a surface that is not one is kept as reconstructed.
+void reinflate_stage(const PipelineBuffers& buffers, const PipelineConfig& config,
+                     const std::stop_token& stop, PipelineResult& result) {
+  if (!config.reinflate || !result.topology.manifold) return;
+  const auto t = Clock::now();
+  segment::BalloonResult second =
+      segment::reinflate(buffers.smoothed, buffers.gradient, result.mesh, result.balloon_stats,
+                         config.balloon, config.reinflate_pass, stop);
+  result.timings.reinflate_ms = ms_since(t);
+  if (stop.stop_requested()) return;
+  result.mesh = std::move(second.mesh);
+  result.topology.volume_ml = reconstruct::enclosed_volume_ml(result.mesh);
+  result.enclosed_volume_ml = result.topology.volume_ml;
+}
 
-  // §6: labels on the input grid and the deepest interior point for seed tracking.
-  if (config.want_labels) {
-    t = Clock::now();
-    result.labels = reconstruct::rasterize_labels(result.mesh, input);
-    Vec3i deepest;
-    float depth_mm = 0.0f;
-    if (internal::deepest_interior_index(*result.labels, deepest, depth_mm))
-      result.deepest_interior_mm = input.index_to_mm(deepest.cast<float>());
-    result.timings.labels_ms = ms_since(t);
-  }
+// §6: labels on the input grid and the deepest interior point for seed tracking.
+void labels_stage(const volume::Volume& input, PipelineResult& result) {
+  const auto t = Clock::now();
+  result.labels = reconstruct::rasterize_labels(result.mesh, input);
+  Vec3i deepest;
+  float depth_mm = 0.0f;
+  if (internal::deepest_interior_index(*result.labels, deepest, depth_mm))
+    result.deepest_interior_mm = input.index_to_mm(deepest.cast<float>());
+  result.timings.labels_ms = ms_since(t);
+}
+
+}  // namespace
+
+PipelineResult run_pipeline(const volume::Volume& input, const Vec3f& seed_mm,
+                            const PipelineConfig& config, PipelineBuffers& buffers,
+                            const WarmStart* warm, std::stop_token stop) {
+  const auto start = Clock::now();
+  PipelineResult result;
+  std::vector<std::uint8_t> no_data;  // (set in §0)
+  auto finish = [&](std::string error) {
+    result.ok = error.empty();
+    result.error = std::move(error);
+    internal::quality_verdict(input, no_data, seed_mm, result);
+    result.timings.total_ms = ms_since(start);
+    return std::move(result);
+  };
+  if (input.empty()) return finish("the volume is empty");
+  // The balloon's own precondition (it throws for a seed outside the volume); checked here so a
+  // tracked seed that drifted out becomes a failed volume, not an exception.
+  if (!seed_mm.allFinite() || !input.contains_mm(seed_mm))
+    return finish("the seed lies outside the volume");
+  smooth_stage(input, seed_mm, config, buffers, no_data, result);
+  if (stop.stop_requested()) return finish("stopped");
+  const segment::BalloonResult balloon =
+      balloon_stage(buffers, seed_mm, config, warm, stop, result);
+  if (stop.stop_requested()) return finish("stopped");
+  if (!balloon.error.empty()) return finish("balloon: " + balloon.error);
+  if (std::string error = surface_stage(input, seed_mm, config, result); !error.empty())
+    return finish(std::move(error));
+  reinflate_stage(buffers, config, stop, result);
+  if (stop.stop_requested()) return finish("stopped");
+  if (config.want_labels) labels_stage(input, result);
   return finish("");
 }
 

@@ -130,6 +130,11 @@ void RunStats::count_quality(bool ok, const std::vector<std::string>& reasons) {
   last_quality_reasons_ = reasons;
 }
 
+void RunStats::count_start(bool warm) {
+  std::lock_guard lock(mutex_);
+  ++(warm ? warm_starts_ : cold_starts_);
+}
+
 void RunStats::set_igtl(std::size_t clients, std::uint64_t sent, std::uint64_t dropped) {
   std::lock_guard lock(mutex_);
   igtl_enabled_ = true;
@@ -202,6 +207,7 @@ nlohmann::json RunStats::status_json() const {
   }
   j["quality"] = {{"ok", quality_ok_}, {"suspect", quality_suspect_},
                   {"suspect_reasons", suspect_reasons_}};
+  j["starts"] = {{"warm", warm_starts_}, {"cold", cold_starts_}};
   if (igtl_enabled_) {
     j["igtl"] = {{"clients", igtl_clients_}, {"sent", igtl_sent_}, {"dropped", igtl_dropped_}};
   }
@@ -248,6 +254,9 @@ void RunStats::prom_counts(std::ostream& out) const {
            "Suspect results by reason (one may have several).");
   for (const auto& [reason, n] : suspect_reasons_)
     out << "sonomesh_suspect_reasons_total{reason=\"" << prom_label(reason) << "\"} " << n << "\n";
+  describe(out, "sonomesh_starts_total", "counter", "Processed volumes by how the balloon started.");
+  out << "sonomesh_starts_total{start=\"warm\"} " << warm_starts_ << "\n"
+      << "sonomesh_starts_total{start=\"cold\"} " << cold_starts_ << "\n";
 }
 
 void RunStats::prom_latency(std::ostream& out) const {

@@ -47,6 +47,8 @@ class RunStats {
   /// and shown as the latest one.
   void count_quality(bool ok, const std::vector<std::string>& reasons);
   void count_outage();
+  /// How a processed volume's balloon started (issue 17): warm or cold.
+  void count_start(bool warm);
   /// The OpenIGTLink server's clients and result sets sent or dropped (slow clients).
   void set_igtl(std::size_t clients, std::uint64_t sent, std::uint64_t dropped);
 
@@ -88,6 +90,8 @@ class RunStats {
   int last_genus_ = -1;
   std::uint64_t quality_ok_ = 0;
   std::uint64_t quality_suspect_ = 0;
+  std::uint64_t warm_starts_ = 0;
+  std::uint64_t cold_starts_ = 0;
   std::map<std::string, std::uint64_t> suspect_reasons_;
   std::optional<bool> last_quality_ok_;
   std::vector<std::string> last_quality_reasons_;

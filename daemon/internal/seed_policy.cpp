@@ -48,4 +48,20 @@ SeedChoice choose_seed(const std::vector<SeedCandidate>& candidates, const SeedC
   return choice;
 }
 
+StartDecision decide_start(const StartInputs& in, const StartLimits& limits) {
+  auto cold = [](std::string why) { return StartDecision{false, std::move(why)}; };
+  if (in.seed_overridden) return cold("seed override");
+  if (!in.have_previous) return cold("no previous balloon");
+  if (!in.previous_quality_ok) return cold("previous result suspect");
+  if (!in.seed_tracked) return cold("seed not tracked");
+  if (!in.same_grid) return cold("grid changed");
+  if (!(in.motion_vox <= limits.max_motion_vox))
+    return cold("moved " + std::to_string(in.motion_vox) + " vox");
+  if (!(in.volume_change <= limits.max_volume_change))
+    return cold("volume changed " + std::to_string(static_cast<int>(100.0f * in.volume_change)) +
+                " %");
+  if (in.since_refused < limits.refused_backoff_volumes) return cold("warm start refused recently");
+  return {true, "previous balloon"};
+}
+
 }  // namespace sonomesh::daemon

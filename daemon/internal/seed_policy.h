@@ -57,4 +57,35 @@ struct SeedChoice {
 /// The first candidate that `check` accepts.
 SeedChoice choose_seed(const std::vector<SeedCandidate>& candidates, const SeedCheck& check);
 
+/// What the worker knows when it chooses how the next volume's balloon starts (issue 17): from
+/// the previous volume's balloon (warm) or from the small sphere at the seed (cold).
+struct StartInputs {
+  bool have_previous = false;        // a balloon is kept from the last volume (it succeeded)
+  bool previous_quality_ok = false;  // and its verdict was "ok"
+  bool seed_overridden = false;      // POST /seed or a reload moved the seed for this volume
+  bool seed_tracked = false;         // the seed chosen is the tracked point
+  bool same_grid = false;            // the new volume's grid (dims, spacing, origin) is the last's
+  float motion_vox = 0.0f;           // how far the result's centroid moved between the last two
+  float volume_change = 0.0f;        // |ΔV| / V of the enclosed volume between the last two
+  int since_refused = 1 << 30;       // volumes since the pipeline's check last refused a warm start
+};
+
+/// Beyond these the previous balloon says too little about the new volume.
+struct StartLimits {
+  float max_motion_vox = 6.0f;      // a probe moved, not a breath (breathing: < 1 voxel a volume)
+  float max_volume_change = 0.25f;  // the target changed shape, or the result did
+  // After a refused warm start, this many volumes start cold without trying: a refused attempt
+  // costs its checks on top of the cold start, and a target the check refuses (the seam behind
+  // a needle) is refused again on the next volume.
+  int refused_backoff_volumes = 8;
+};
+
+struct StartDecision {
+  bool warm = false;
+  std::string reason;  // why (the journal's "start_reason")
+};
+
+/// Warm only when every condition holds; otherwise cold with the first reason that failed.
+StartDecision decide_start(const StartInputs& in, const StartLimits& limits = {});
+
 }  // namespace sonomesh::daemon

@@ -2,6 +2,8 @@
 
 #include <spdlog/spdlog.h>
 
+#include <cmath>
+
 #include "daemon/internal/outputs.h"
 
 namespace sonomesh::daemon {
@@ -72,6 +74,7 @@ void Worker::run() {
 
 void Worker::fail(const QueuedVolume& item, const std::string& reason, nlohmann::json line) {
   const std::uint64_t seq = item.raw.sequence;
+  previous_.reset();  // the next volume starts cold
   line["reason"] = reason;
   line["latency_ms"] = ms_between(item.received, Clock::now());
   context_.recorder.record(seq, JournalStatus::Failed, std::move(line), item.epoch);
@@ -86,7 +89,8 @@ std::optional<SeedCandidate> Worker::pick_seed(const volume::Volume& input, cons
                                                nlohmann::json& line) {
   const auto to_grid = [&](const std::optional<SeedMm>& world) -> std::optional<SeedMm> {
     if (!world) return std::nullopt;
-    const Vec3f g = internal::seed_world_to_grid_mm(input, Vec3f((*world)[0], (*world)[1], (*world)[2]));
+    const Vec3f g =
+        internal::seed_world_to_grid_mm(input, Vec3f((*world)[0], (*world)[1], (*world)[2]));
     return SeedMm{g.x(), g.y(), g.z()};
   };
   const auto to_world = [&](const SeedMm& grid) {
@@ -98,6 +102,7 @@ std::optional<SeedCandidate> Worker::pick_seed(const volume::Volume& input, cons
     std::lock_guard lock(override_mutex_);
     inputs.override_mm = to_grid(std::exchange(override_mm_, std::nullopt));
   }
+  seed_overridden_ = inputs.override_mm.has_value();
   inputs.configured_mm = to_grid(config.seed_mm);
   inputs.phantom_mm = phantom_seed_mm_;
   const Vec3f centre = input.index_to_mm((input.dims() - Vec3i::Ones()).cast<float>() * 0.5f);
@@ -139,12 +144,27 @@ void Worker::process(QueuedVolume item) {
     return fail(item, "no usable seed: " + why, std::move(line));
   }
   const Vec3f seed_mm(seed->mm[0], seed->mm[1], seed->mm[2]);
+  const StartDecision start = choose_start(input, *seed);
+  if (seed_overridden_) last_centroid_mm_.reset();  // a new object: no motion to carry
+  std::optional<WarmStart> warm;
+  if (start.warm) {
+    // The inset: 2 voxels, plus how far the object moved last time (it may move as far again).
+    const float vox_mm = input.spacing_mm().minCoeff();
+    warm = WarmStart{std::move(previous_->balloon), std::move(previous_->balloon_stop),
+                     (2.0f + previous_->motion_vox) * vox_mm};
+  }
+  previous_.reset();  // kept again below from this result, if it succeeds
   PipelineResult result;
   try {
-    result = run_pipeline(input, seed_mm, config.pipeline, buffers_, abort_);
+    result =
+        run_pipeline(input, seed_mm, config.pipeline, buffers_, warm ? &*warm : nullptr, abort_);
   } catch (const std::exception& e) {
     return fail(item, std::string("pipeline: ") + e.what(), std::move(line));
   }
+  if (!start.warm) result.start_reason = start.reason;  // (a refused warm start says why itself)
+  since_refused_ = start.warm && !result.warm_start ? 0 : std::min(since_refused_, 1 << 29) + 1;
+  line["start"] = result.warm_start ? "warm" : "cold";
+  line["start_reason"] = result.warm_start ? start.reason : result.start_reason;
   nlohmann::json& timings = line["timings_ms"];
   timings["queue_wait"] = queue_wait_ms;
   for (const auto& [stage, ms] : result.timings.stages()) timings[stage] = ms;
@@ -161,6 +181,7 @@ void Worker::process(QueuedVolume item) {
   }
   seeds_.on_result(deepest, override_waiting());
   describe_result(result, line);
+  context_.stats.count_start(result.warm_start);
 
   WorkerResult out;
   ProcessedVolume& v = out.volume;
@@ -171,6 +192,8 @@ void Worker::process(QueuedVolume item) {
   v.report["sequence"] = seq;
   v.report["seed_origin"] = to_string(seed->origin);
   v.report["queue_wait_ms"] = queue_wait_ms;
+  if (result.warm_start) v.report["start_reason"] = start.reason;
+  keep_for_warm_start(input, result);
   // The outputs are in the input's world frame (LPS mm, DESIGN.md "Geometry and files"): the
   // mesh mapped there, the labels given the input's direction (they share its grid and origin).
   v.mesh = internal::mesh_to_world(result.mesh, input);
@@ -181,6 +204,51 @@ void Worker::process(QueuedVolume item) {
   v.input = std::make_shared<const volume::Volume>(std::move(input));
   out.line = std::move(line);
   out_.push(std::move(out));
+}
+
+// Cold unless the last result can start this one (seed_policy.h, decide_start).
+StartDecision Worker::choose_start(const volume::Volume& input, const SeedCandidate& seed) const {
+  StartInputs in;
+  in.seed_overridden = seed_overridden_;
+  in.have_previous = previous_.has_value();
+  in.seed_tracked = seed.origin == SeedOrigin::Tracked;
+  if (previous_) {
+    in.previous_quality_ok = previous_->quality_ok;
+    in.same_grid =
+        previous_->dims == input.dims() && previous_->spacing_mm.isApprox(input.spacing_mm()) &&
+        (previous_->origin_mm - input.origin_mm()).norm() < 0.01f * input.spacing_mm().minCoeff();
+    in.motion_vox = previous_->motion_vox;
+    in.volume_change = previous_->volume_change;
+  }
+  in.since_refused = since_refused_;
+  return decide_start(in);
+}
+
+// The balloon (genus 0 by construction; the reconstructed surface may have a tunnel), where the
+// result's centre is, how large it is, and how much both changed since the result before.
+void Worker::keep_for_warm_start(const volume::Volume& input, PipelineResult& result) {
+  if (result.balloon.vertices.empty() || result.mesh.vertices.empty()) return;
+  Previous next;
+  for (const Vec3f& p : result.mesh.vertices) next.centroid_mm += p;
+  next.centroid_mm /= static_cast<float>(result.mesh.vertices.size());
+  next.volume_ml = result.enclosed_volume_ml;
+  next.dims = input.dims();
+  next.spacing_mm = input.spacing_mm();
+  next.origin_mm = input.origin_mm();
+  next.quality_ok = result.quality_ok;
+  if (last_centroid_mm_) {
+    next.motion_vox =
+        (next.centroid_mm - *last_centroid_mm_).norm() / input.spacing_mm().minCoeff();
+    next.volume_change =
+        last_volume_ml_ > 0.0
+            ? static_cast<float>(std::abs(next.volume_ml - last_volume_ml_) / last_volume_ml_)
+            : 1.0f;
+  }
+  last_centroid_mm_ = next.centroid_mm;
+  last_volume_ml_ = next.volume_ml;
+  next.balloon = std::move(result.balloon);
+  next.balloon_stop = std::move(result.balloon_stop);
+  previous_ = std::move(next);
 }
 
 }  // namespace sonomesh::daemon

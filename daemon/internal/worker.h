@@ -43,6 +43,22 @@ class Worker {
                                          nlohmann::json& line);
   void fail(const QueuedVolume& item, const std::string& reason, nlohmann::json line);
   bool override_waiting();
+  // How this volume's balloon starts (issue 17), and what the next one needs from this result.
+  StartDecision choose_start(const volume::Volume& input, const SeedCandidate& seed) const;
+  void keep_for_warm_start(const volume::Volume& input, PipelineResult& result);
+
+  // What the next volume's warm start needs from the last result; empty after a failure.
+  struct Previous {
+    segment::Mesh balloon;  // grid frame mm, genus 0
+    std::vector<segment::StopReason> balloon_stop;
+    Vec3f centroid_mm = Vec3f::Zero();
+    double volume_ml = 0.0;
+    Vec3i dims = Vec3i::Zero();
+    Vec3f spacing_mm = Vec3f::Zero(), origin_mm = Vec3f::Zero();
+    bool quality_ok = false;
+    float motion_vox = 0.0f;     // centroid motion from the result before
+    float volume_change = 0.0f;  // |ΔV| / V from the result before
+  };
 
   RunContext context_;
   VolumeQueue& in_;
@@ -51,6 +67,11 @@ class Worker {
   std::stop_token abort_;    // second signal: abort the volume in hand
   PipelineBuffers buffers_;  // smoothing buffers, reused from volume to volume
   SeedPolicy seeds_;         // the worker's own
+  std::optional<Previous> previous_;
+  bool seed_overridden_ = false;  // the last pick_seed used an override
+  std::optional<Vec3f> last_centroid_mm_;  // of the last result (its motion, for the next)
+  double last_volume_ml_ = 0.0;
+  int since_refused_ = 1 << 30;  // volumes since the pipeline last refused a warm start
   std::function<void()> turn_hook_;
 
   std::mutex override_mutex_;  // the one-slot mailbox from the HTTP and signal threads

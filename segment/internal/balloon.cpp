@@ -6,6 +6,7 @@
 #include <string>
 
 #include "segment/internal/balloon_evolution.h"
+#include "segment/internal/warm_start.h"
 #include "segment/segment.h"
 
 namespace sonomesh::segment {
@@ -67,52 +68,124 @@ void check_seed_inside(const volume::Volume& smoothed, const Vec3f& seed_mm) {
                                 ") mm lies outside the volume");
 }
 
+// What both starts share: the inputs checked, the seed region's statistics, the stop rule and
+// the snap. `error` is set when the seed cannot start a balloon.
+struct Prelude {
+  Clock::time_point t0 = Clock::now();
+  volume::Volume converted;
+  const volume::Volume& smoothed;
+  const ImageSampler sampler;
+  const float vox_mm;
+  CostScale scale;
+  SeedRegion seed;
+  CostRule cost;
+  WallSnap snap;
+  std::string error;
+
+  Prelude(const volume::Volume& smoothed_in, const volume::Gradient& gradient, const Vec3f& seed_mm,
+          const BalloonOptions& options, BalloonStats& stats)
+      : smoothed(checked(smoothed_in, gradient, seed_mm, options, converted)),
+        sampler(smoothed, gradient),
+        vox_mm(smoothed.spacing_mm().minCoeff()) {
+    seed = seed_region(sampler, smoothed, seed_mm, options, vox_mm, scale);
+    stats.seed_level = seed.level;
+    stats.seed_sigma = seed.sigma;
+    stats.tissue_level = seed.tissue_level;
+    error = refusal(seed);
+    if (!error.empty()) return;
+    cost = cost_rule(seed, scale, options, vox_mm);
+    stats.noise_rise_per_mm = seed.noise_rise_per_mm;
+    stats.tau_cost_used = cost.tau;
+    stats.tau_climb_used = cost.tau_climb;
+    const StepKernel box(options, smoothed, vox_mm);
+    snap = wall_snap(options, vox_mm, seed.tissue_level, box.box_lo, box.box_hi);
+  }
+
+  static const volume::Volume& checked(const volume::Volume& smoothed_in,
+                                       const volume::Gradient& gradient, const Vec3f& seed_mm,
+                                       const BalloonOptions& options, volume::Volume& storage) {
+    if (smoothed_in.empty()) throw std::invalid_argument("inflate_balloon: empty volume");
+    check_gradient(smoothed_in, gradient, "inflate_balloon");
+    check_seed_inside(smoothed_in, seed_mm);
+    check_options(options);
+    return as_float32(smoothed_in, storage);
+  }
+
+  // The cost rule's wall: tau_cost_fraction of the way from the seed level to the tissue's.
+  float wall_level(const BalloonOptions& options) const {
+    return scale.map(seed.level + options.tau_cost_fraction * (seed.tissue_level - seed.level));
+  }
+
+  BalloonResult finish(BalloonResult& result, std::string why) const {
+    result.error = std::move(why);
+    result.stats.elapsed_ms = ms_since(t0);
+    return std::move(result);
+  }
+};
+
+BalloonResult evolve(const Prelude& pre, BalloonEvolution& evolution, BalloonResult& result,
+                     std::stop_token stop) {
+  evolution.run(std::move(stop));
+  if (result.stats.leaked) return pre.finish(result, evolution.leak_message());
+  evolution.take_result(result.mesh, result.stop);
+  result.converged = evolution.converged();
+  return pre.finish(result, "");
+}
+
 }  // namespace
 
 BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::Gradient& gradient,
                               const Vec3f& seed_mm, const BalloonOptions& options,
                               std::stop_token stop) {
-  const auto t0 = Clock::now();
-  if (smoothed_in.empty()) throw std::invalid_argument("inflate_balloon: empty volume");
-  check_gradient(smoothed_in, gradient, "inflate_balloon");
-  check_seed_inside(smoothed_in, seed_mm);
-  const float vox_mm = smoothed_in.spacing_mm().minCoeff();
-  check_options(options);
-  volume::Volume converted;
-  const volume::Volume& smoothed = as_float32(smoothed_in, converted);
-  const ImageSampler sampler(smoothed, gradient);
-
   BalloonResult result;
   BalloonStats& stats = result.stats;
-  auto finish = [&](std::string error) {
-    result.error = std::move(error);
-    stats.elapsed_ms = ms_since(t0);
-    return std::move(result);
-  };
-  CostScale scale;
-  const SeedRegion seed = seed_region(sampler, smoothed, seed_mm, options, vox_mm, scale);
-  stats.seed_level = seed.level;
-  stats.seed_sigma = seed.sigma;
-  stats.tissue_level = seed.tissue_level;
-  if (std::string why = refusal(seed); !why.empty()) return finish(std::move(why));
-  const CostRule cost = cost_rule(seed, scale, options, vox_mm);
-  stats.noise_rise_per_mm = seed.noise_rise_per_mm;
-  stats.tau_cost_used = cost.tau;
-  stats.tau_climb_used = cost.tau_climb;
+  const Prelude pre(smoothed_in, gradient, seed_mm, options, stats);
+  if (!pre.error.empty()) return pre.finish(result, pre.error);
   // S^0: initial_radius_vox, inside the rays' safe reach (it must start inside the object) and
   // not below one voxel.
-  const float radius_mm = std::max(
-      std::min(options.initial_radius_vox * vox_mm, 0.8f * seed.safe_radius_mm), 1.0f * vox_mm);
+  const float radius_mm =
+      std::max(std::min(options.initial_radius_vox * pre.vox_mm, 0.8f * pre.seed.safe_radius_mm),
+               1.0f * pre.vox_mm);
   stats.initial_radius_mm = radius_mm;
+  BalloonEvolution evolution(pre.smoothed, pre.sampler, options, pre.cost, pre.snap, seed_mm,
+                             radius_mm, stats);
+  return evolve(pre, evolution, result, std::move(stop));
+}
 
-  const StepKernel box(options, smoothed, vox_mm);
-  const WallSnap snap = wall_snap(options, vox_mm, seed.tissue_level, box.box_lo, box.box_hi);
-  BalloonEvolution evolution(smoothed, sampler, options, cost, snap, seed_mm, radius_mm, stats);
-  evolution.run(std::move(stop));
-  if (stats.leaked) return finish(evolution.leak_message());
-  evolution.take_result(result.mesh, result.stop);
-  result.converged = evolution.converged();
-  return finish("");
+BalloonResult inflate_balloon_from(const volume::Volume& smoothed_in,
+                                   const volume::Gradient& gradient, const Mesh& start_mesh,
+                                   const Vec3f& seed_mm, const BalloonOptions& options,
+                                   const WarmStartOptions& warm, std::stop_token stop) {
+  BalloonResult result;
+  BalloonStats& stats = result.stats;
+  stats.warm_start = true;
+  const Prelude pre(smoothed_in, gradient, seed_mm, options, stats);
+  if (!pre.error.empty()) return pre.finish(result, pre.error);
+  auto unsafe = [&](const std::string& why) {
+    result.start_unsafe = true;
+    return pre.finish(result, "warm start not safe: " + why);
+  };
+  // At least 2 voxels: the wall snap looks up to 1.5 voxels ahead, and a start on the wall's
+  // flank would begin with part of the climb already behind it.
+  const float inset_mm = std::max(warm.inset_mm, 2.0f * pre.vox_mm);
+  const StepKernel box(options, pre.smoothed, pre.vox_mm);
+  const float wall_level = pre.wall_level(options);
+  if (std::string why = check_walls_kept(start_mesh, warm.start_stop, pre.sampler, pre.scale,
+                                         wall_level, pre.seed.level, inset_mm, pre.vox_mm, box);
+      !why.empty())
+    return unsafe(why);
+  BalloonMesh start;
+  if (std::string why =
+          prepare_start_mesh(start_mesh, inset_mm, remesh_limits(options, pre.vox_mm), start);
+      !why.empty())
+    return unsafe(why);
+  if (std::string why = check_start_safe(start, pre.sampler, pre.scale, wall_level, box);
+      !why.empty())
+    return unsafe(why);
+  init_start_states(start, pre.sampler, pre.scale, pre.seed.level);
+  BalloonEvolution evolution(pre.smoothed, pre.sampler, options, pre.cost, pre.snap,
+                             std::move(start), stats);
+  return evolve(pre, evolution, result, std::move(stop));
 }
 
 BalloonResult inflate_balloon(const volume::Volume& image, float sigma_mm, const Vec3f& seed_mm,

@@ -25,11 +25,11 @@ std::size_t leak_bound(const volume::Volume& grid, const BalloonOptions& o, floa
          1000;
 }
 
+}  // namespace
+
 RemeshLimits remesh_limits(const BalloonOptions& o, float vox_mm) {
   return {0.8f * o.target_edge_vox * vox_mm, (4.0f / 3.0f) * o.target_edge_vox * vox_mm};
 }
-
-}  // namespace
 
 BalloonEvolution::BalloonEvolution(const volume::Volume& smoothed, const ImageSampler& sampler,
                                    const BalloonOptions& options, const CostRule& cost,
@@ -48,6 +48,30 @@ BalloonEvolution::BalloonEvolution(const volume::Volume& smoothed, const ImageSa
       workers_(options.threads),
       marks_(smoothed) {
   make_uv_sphere(bm_, seed_mm, radius_mm, 10, 11);
+  begin();
+}
+
+BalloonEvolution::BalloonEvolution(const volume::Volume& smoothed, const ImageSampler& sampler,
+                                   const BalloonOptions& options, const CostRule& cost,
+                                   const WallSnap& snap, BalloonMesh start, BalloonStats& stats)
+    : smoothed_(smoothed),
+      sampler_(sampler),
+      options_(options),
+      cost_(cost),
+      snap_(snap),
+      kernel_(options, smoothed, smoothed.spacing_mm().minCoeff()),
+      limits_(remesh_limits(options, smoothed.spacing_mm().minCoeff())),
+      stall_mm_(options.stall_motion_vox * smoothed.spacing_mm().minCoeff()),
+      max_vertices_(leak_bound(smoothed, options, smoothed.spacing_mm().minCoeff())),
+      stats_(stats),
+      workers_(options.threads),
+      bm_(std::move(start)),
+      marks_(smoothed) {
+  begin();
+}
+
+// S^0 in the flat arrays, every vertex moved: normals, and its band marked in A_t.
+void BalloonEvolution::begin() {
   extract(bm_, a_);
   moved_.assign(a_.pos.size(), kMoved | kMarks);
   all_active();

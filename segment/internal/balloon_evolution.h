@@ -19,6 +19,9 @@
 
 namespace sonomesh::segment::internal {
 
+/// The remeshing range at the target edge length L: collapse < 4/5 L, split > 4/3 L.
+RemeshLimits remesh_limits(const BalloonOptions& options, float vox_mm);
+
 class BalloonEvolution {
  public:
   /// S^0: a UV sphere of `radius_mm` at the seed. `smoothed` (Float32) and `sampler` must outlive
@@ -26,6 +29,15 @@ class BalloonEvolution {
   BalloonEvolution(const volume::Volume& smoothed, const ImageSampler& sampler,
                    const BalloonOptions& options, const CostRule& cost, const WallSnap& snap,
                    const Vec3f& seed_mm, float radius_mm, BalloonStats& stats);
+  /// S^0: `start` (closed, genus 0, outward; the warm start's mesh, warm_start.h), its vertex
+  /// states as given. A_t starts empty: the previous volume's swept set is not carried (a
+  /// withdrawn needle's tunnel must not survive in it), and the start mesh's interior is not
+  /// marked either, because the self-intersection test needs the normal of the front that swept
+  /// a voxel, which an interior voxel has not got; the start surface itself marks its band with
+  /// its normals here, so two sheets that meet again in the new volume see each other.
+  BalloonEvolution(const volume::Volume& smoothed, const ImageSampler& sampler,
+                   const BalloonOptions& options, const CostRule& cost, const WallSnap& snap,
+                   BalloonMesh start, BalloonStats& stats);
 
   /// Evolves until every vertex stopped, the evolution stalled, the leak bound, a stop request
   /// or the iteration limit; then the remaining moving vertices get IterationLimit.
@@ -42,6 +54,7 @@ class BalloonEvolution {
   // voxel than the one it last marked A_t from (so it marks its samples again).
   static constexpr std::uint8_t kMoved = 1, kMarks = 2;
 
+  void begin();
   void all_active();
   int iterate();
   bool advance_vertex(std::uint32_t v, const FrontGrid::Reader& reader);

@@ -179,7 +179,10 @@ Phantom make_phantom(const PhantomSpec& spec) {
 
   Phantom out;
   out.name = spec.phantom;
-  out.genus = internal::shape_genus(shape.kind());
+  // (A cyst without its needle has no tunnel.)
+  out.genus = shape.kind() == internal::ShapeKind::CystNeedle && !shape.has_needle()
+                  ? 0
+                  : internal::shape_genus(shape.kind());
   out.image = volume::Volume(dims, spec.spacing_mm, origin_mm, volume::VoxelType::UInt8);
   out.truth = volume::Volume(dims, spec.spacing_mm, origin_mm, volume::VoxelType::UInt8);
   if (spec.realism == Realism::Echo)

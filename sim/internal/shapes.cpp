@@ -120,7 +120,7 @@ Shape::Shape(const PhantomSpec& spec, const Vec3f& origin_mm)
   u_ = (helper - helper.dot(w_) * w_).normalized();
   v_ = w_.cross(u_);
 
-  if (kind_ == ShapeKind::CystNeedle) {
+  if (kind_ == ShapeKind::CystNeedle && spec.needle) {
     Needle n;
     n.direction = unit_or_throw(spec.needle_axis, "needle_axis");
     Vec3f side = n.direction.cross(w_);

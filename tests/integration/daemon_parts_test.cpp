@@ -6,6 +6,7 @@
 #include <filesystem>
 #include <fstream>
 #include <nlohmann/json.hpp>
+#include <limits>
 #include <set>
 
 #include "daemon/internal/bounded_queue.h"
@@ -253,3 +254,62 @@ TEST(RunStats, QualityVerdictInStatusAndMetrics) {
   EXPECT_EQ(metrics.value("sonomesh_results_total", {{"quality", "suspect"}}), 2);
   EXPECT_EQ(metrics.value("sonomesh_suspect_reasons_total", {{"reason", "leak bound"}}), 2);
 }
+
+namespace sonomesh::daemon {
+namespace {
+
+// The warm/cold decision (issue 17): warm only when every condition holds.
+StartInputs warm_inputs() {
+  return {.have_previous = true,
+          .previous_quality_ok = true,
+          .seed_overridden = false,
+          .seed_tracked = true,
+          .same_grid = true,
+          .motion_vox = 0.5f,
+          .volume_change = 0.02f};
+}
+
+TEST(SeedPolicy, DecideStartWarmWhenEverythingHolds) {
+  const StartDecision d = decide_start(warm_inputs());
+  EXPECT_TRUE(d.warm);
+  EXPECT_EQ(d.reason, "previous balloon");
+}
+
+TEST(SeedPolicy, DecideStartColdForEachFailedCondition) {
+  auto cold_reason = [](auto change) {
+    StartInputs in = warm_inputs();
+    change(in);
+    const StartDecision d = decide_start(in);
+    EXPECT_FALSE(d.warm);
+    return d.reason;
+  };
+  EXPECT_EQ(cold_reason([](StartInputs& in) { in.have_previous = false; }), "no previous balloon");
+  EXPECT_EQ(cold_reason([](StartInputs& in) { in.seed_overridden = true; }), "seed override");
+  EXPECT_EQ(cold_reason([](StartInputs& in) { in.previous_quality_ok = false; }),
+            "previous result suspect");
+  EXPECT_EQ(cold_reason([](StartInputs& in) { in.seed_tracked = false; }), "seed not tracked");
+  EXPECT_EQ(cold_reason([](StartInputs& in) { in.same_grid = false; }), "grid changed");
+  EXPECT_EQ(cold_reason([](StartInputs& in) { in.motion_vox = 7.0f; }).rfind("moved", 0), 0u);
+  EXPECT_EQ(cold_reason([](StartInputs& in) { in.volume_change = 0.4f; }),
+            "volume changed 40 %");
+  EXPECT_EQ(cold_reason([](StartInputs& in) { in.since_refused = 3; }),
+            "warm start refused recently");
+  StartInputs after_backoff = warm_inputs();
+  after_backoff.since_refused = StartLimits{}.refused_backoff_volumes;
+  EXPECT_TRUE(decide_start(after_backoff).warm);
+  // NaN motion (a degenerate centroid) is not "small".
+  EXPECT_FALSE(decide_start({.have_previous = true, .previous_quality_ok = true,
+                             .seed_tracked = true, .same_grid = true,
+                             .motion_vox = std::numeric_limits<float>::quiet_NaN()})
+                   .warm);
+}
+
+TEST(SeedPolicy, DecideStartOverrideWinsOverEverything) {
+  StartInputs in = warm_inputs();
+  in.seed_overridden = true;
+  in.have_previous = false;
+  EXPECT_EQ(decide_start(in).reason, "seed override");
+}
+
+}  // namespace
+}  // namespace sonomesh::daemon

@@ -65,6 +65,26 @@ TEST_P(SimTruthTopology, HasTheStatedGenus) {
   EXPECT_EQ(topo.tunnels(), p.genus) << "euler " << topo.euler;
 }
 
+// The needle switched off (withdrawn): the cyst alone, genus 0, and the image differs only
+// around where the needle and its shadow were.
+TEST(SimTopology, CystWithoutItsNeedleHasGenusZero) {
+  PhantomSpec spec = spec_for("cyst-needle", 64);
+  spec.needle = false;
+  const Phantom without = make_phantom(spec);
+  EXPECT_EQ(without.genus, 0);
+  const auto topo = solid_topology(without.truth);
+  EXPECT_EQ(topo.components, 1);
+  EXPECT_EQ(topo.tunnels(), 0);
+  spec.needle = true;
+  const Phantom with = make_phantom(spec);
+  EXPECT_EQ(with.genus, 1);
+  std::size_t differ = 0;
+  for (std::size_t i = 0; i < with.image.u8().size(); ++i)
+    differ += with.image.u8()[i] != without.image.u8()[i];
+  EXPECT_GT(differ, 0u);
+  EXPECT_LT(differ, with.image.u8().size() / 4);
+}
+
 INSTANTIATE_TEST_SUITE_P(
     Phantoms, SimTruthTopology,
     ::testing::Values(TopologyCase{"sphere", 48, Vec3f::UnitZ(), 0.0f},

@@ -1,0 +1,41 @@
+#pragma once
+/// @file
+/// @brief The warm start's start mesh (segment.h, inflate_balloon_from): the previous volume's
+/// balloon moved inward, remeshed, and checked against the new volume before it is used.
+
+#include <span>
+#include <string>
+
+#include "segment/internal/balloon_mesh.h"
+#include "segment/internal/image_sampler.h"
+#include "segment/internal/step.h"
+
+namespace sonomesh::segment::internal {
+
+/// `previous` (closed, manifold, genus 0, outward) lightly smoothed, moved `inset_mm` inward
+/// along its vertex normals, then remeshed to `limits`, into `out`. Returns why it cannot start
+/// a balloon (not a closed genus-0 mesh, or folded by the inset), empty if it can.
+std::string prepare_start_mesh(const Mesh& previous, float inset_mm, const RemeshLimits& limits,
+                               BalloonMesh& out);
+
+/// The check on the new volume: every vertex and every edge midpoint of `start` lies in the
+/// step's box and below `wall_level` (the cost rule's "inside", in the cost's scale). Returns why
+/// not (how many samples failed, and where the first one is), empty if safe.
+std::string check_start_safe(const BalloonMesh& start, const ImageSampler& sampler,
+                             const CostScale& scale, float wall_level, const StepKernel& box);
+
+/// The walls the previous balloon stopped at must still be there: a vertex of `previous` that
+/// the boundary cost stopped (`stop` Boundary) needs a sample at or above `wall_level` within
+/// `reach_mm` along its normal, either way, or a rise along it by half the climb from the seed's
+/// level (`seed_level`, grey levels) to the wall's. Returns why not when more than 10 % of them
+/// lost their wall (a withdrawn needle: its sheets would meet where it was and keep its tunnel).
+std::string check_walls_kept(const Mesh& previous, std::span<const StopReason> stop,
+                             const ImageSampler& sampler, const CostScale& scale, float wall_level,
+                             float seed_level, float reach_mm, float vox_mm, const StepKernel& box);
+
+/// Each vertex starts as if it had climbed from the seed's level to where it stands (as
+/// reinflate's vertices do), so a start part-way up a slope does not get the climb for free.
+void init_start_states(BalloonMesh& start, const ImageSampler& sampler, const CostScale& scale,
+                       float seed_level);
+
+}  // namespace sonomesh::segment::internal
