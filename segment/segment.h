@@ -63,7 +63,13 @@ struct BalloonOptions {
   float snap_back_vox = 1.0f;    // behind the stop (over-shot vertices)...
   float snap_ahead_vox = 1.5f;   // ...and ahead (speckle stops early more often); sum <= 8
   float snap_min_slope = 0.25f;  // least relative slope <∇I, n>/I per voxel (speckle stays below)
-  float tau_curv = 1.2f;         // τ_curv: mean H(PQ)/|PQ| over P's edges (0 flat, 2 folded)
+  // Departure (issue 15): a vertex the boundary cost would stop moves on while the image ahead of
+  // it still looks like the inside: the mean over a cross of samples 1-3 voxels ahead along its
+  // normal below the mean as far behind, raised by region_fraction of the tissue/target ratio
+  // (both means carry the same attenuation and shadow). A speckle grain is one bump of Ψ_cost; it
+  // is not a brighter region. 0 = off (the paper's rule alone): the default, see docs/stopping.md.
+  float region_fraction = 0.0f;
+  float tau_curv = 1.2f;  // τ_curv: mean H(PQ)/|PQ| over P's edges (0 flat, 2 folded)
   // A marked voxel is "the other side" below this cosine between its front's normal and P's.
   float self_intersection_cos = -0.5f;
 

@@ -196,7 +196,7 @@ bool BalloonEvolution::advance_vertex(std::uint32_t v, const FrontGrid::Reader& 
     return false;
   }
   bool stopped = false;
-  const float t = cost_.advance(sampler_, p, d, a_.cost[v], a_.floor_level[v], a_.path[v], stopped);
+  const float t = cost_.step(sampler_, p, d, n, a_.cost[v], a_.floor_level[v], a_.path[v], stopped);
   a_.next_pos[v] = p + t * d;
   settle(v, n, stopped, target_ijk, target_in_volume, reader);
   if (stopped) a_.reason[v] = StopReason::Boundary;

@@ -97,11 +97,13 @@ Reinflation::Reinflation(const volume::Volume& smoothed, const volume::Gradient&
   // The first pass's rule and thresholds: both passes stop at the same level. Except the
   // per-axis rise: it guards the first pass's long paths beside a shadow's edge, while this pass
   // moves at most max_move_vox, where the split's speckle would only hold it back.
-  cost_ = CostRule{.scale = cost_scale(options.relative_cost, first_pass.tissue_level),
-                   .tau = first_pass.tau_cost_used,
-                   .tau_climb = first_pass.tau_climb_used,
-                   .window_mm = options.cost_window_vox * vox_mm,
-                   .noise_per_mm = options.noise_allowance ? first_pass.noise_rise_per_mm : 0.0f};
+  cost_ = CostRule{
+      .scale = cost_scale(options.relative_cost, first_pass.tissue_level),
+      .tau = first_pass.tau_cost_used,
+      .tau_climb = first_pass.tau_climb_used,
+      .window_mm = options.cost_window_vox * vox_mm,
+      .noise_per_mm = options.noise_allowance ? first_pass.noise_rise_per_mm : 0.0f,
+      .region = region_veto(options, vox_mm, first_pass.seed_level, first_pass.tissue_level)};
   snap_ = wall_snap(options, vox_mm, first_pass.tissue_level, kernel_.box_lo, kernel_.box_hi);
   stats_.seed_level = first_pass.seed_level;
   stats_.tissue_level = first_pass.tissue_level;
@@ -153,7 +155,7 @@ void Reinflation::advance_vertex(std::uint32_t v) {
     return;
   }
   bool stopped = false;
-  const float t = cost_.advance(sampler_, p, d, cost_of_[v], floor_of_[v], path_of_[v], stopped);
+  const float t = cost_.step(sampler_, p, d, n, cost_of_[v], floor_of_[v], path_of_[v], stopped);
   // (Snapped no further ahead than the move bound allows.)
   next_pos_[v] =
       stopped ? snap_.apply(sampler_, p + t * d, n, std::max(0.0f, max_move_mm_ - path_of_[v]))

@@ -23,6 +23,22 @@ inline float rise_along(const Vec3f& g, const Vec3f& d, bool per_axis) {
 /// The relative scale floors intensities at 10 % of the tissue level (BalloonOptions).
 CostScale cost_scale(bool relative, float tissue_level);
 
+/// The region term (BalloonOptions::region_fraction): whether the image ahead of a vertex at p
+/// with normal n still looks like the inside, so the boundary cost's stop is overruled.
+struct RegionVeto {
+  float ratio = 0.0f;  // ahead/behind below this: still inside; 0 = off
+  float level = 0.0f;  // ...and the mean ahead below this grey level (past a wall: tissue)
+  float peak = 0.0f;   // ...and no sample on the normal ahead above this (a needle, not a grain)
+  float step_mm = 0.0f;
+
+  bool still_inside(const ImageSampler& sampler, const Vec3f& p, const Vec3f& n) const;
+};
+
+RegionVeto region_veto(const BalloonOptions& o, float vox_mm, float seed_level, float tissue_level);
+inline RegionVeto region_veto(const BalloonOptions& o, float vox_mm, const SeedRegion& seed) {
+  return region_veto(o, vox_mm, seed.level, seed.tissue_level);
+}
+
 /// Ψ_cost with its thresholds (method.md §2 and the departures BalloonOptions names).
 struct CostRule {
   CostScale scale;
@@ -31,6 +47,7 @@ struct CostRule {
   float window_mm = 0.0f;     // 0: the plain sum
   float noise_per_mm = 0.0f;  // 0: no noise allowance
   bool per_axis = false;      // BalloonOptions::rise_per_axis
+  RegionVeto region;          // BalloonOptions::region_fraction
 
   /// Advances one vertex by the Euler step d from p: its Ψ_cost, darkest level and path. Returns
   /// the fraction of d to take (1 unless it stops inside the step) and sets `stopped`.
@@ -61,6 +78,17 @@ struct CostRule {
     path_mm += t * step_mm;
     stopped = cost > threshold || level - floor_level > tau_climb;
     return t;
+  }
+
+  /// advance(), then the region term: a stop while the image ahead along the normal n still
+  /// looks like the inside is overruled and the vertex takes the whole step.
+  float step(const ImageSampler& sampler, const Vec3f& p, const Vec3f& d, const Vec3f& n,
+             float& cost, float& floor_level, float& path_mm, bool& stopped) const {
+    const float t = advance(sampler, p, d, cost, floor_level, path_mm, stopped);
+    if (!stopped || !region.still_inside(sampler, p + t * d, n)) return t;
+    stopped = false;
+    path_mm += (1.0f - t) * d.norm();
+    return 1.0f;
   }
 };
 
