@@ -152,6 +152,76 @@ def seed_body():
         put("fuzz_seed_body", name, text)
 
 
+def crc64(data):
+    """CRC-64 ECMA-182, MSB first, initial value 0: OpenIGTLink's crc64()."""
+    crc = 0
+    for b in data:
+        crc ^= b << 56
+        for _ in range(8):
+            crc = ((crc << 1) ^ 0x42F0E1EBA9EA3693) if crc & (1 << 63) else crc << 1
+            crc &= (1 << 64) - 1
+    return crc
+
+
+def igtl_message(kind, device, body, version=1, stamp=(1700000000 << 32) | (1 << 31)):
+    head = struct.pack(">H12s20sQQ", version, kind.encode(), device.encode(), stamp, len(body))
+    return head + struct.pack(">Q", crc64(body)) + body
+
+
+def igtl_v2_body(content, message_id, meta=(("Source", "probe-sim"),)):
+    """Version-2 body: extended header, content, metadata header, metadata."""
+    meta_head = struct.pack(">H", len(meta))
+    meta_data = b""
+    for key, value in meta:
+        meta_head += struct.pack(">HHI", len(key), 3, len(value))  # 3: US-ASCII
+        meta_data += (key + value).encode()
+    ext = struct.pack(">HHII", 12, len(meta_head), len(meta_data), message_id)
+    return ext + content + meta_head + meta_data
+
+
+def igtl_image(dims, scalar, endian, coord, spacing=(0.5, 0.5, 1.0), centre=(1.0, 2.0, 3.0)):
+    """IMAGE content: 72-byte image header (floats always big endian), then the voxels."""
+    columns = [[spacing[c] if a == c else 0.0 for a in range(3)] for c in range(3)]
+    head = struct.pack(">HBBBB3H", 1, 1, scalar, endian, coord, *dims)
+    head += struct.pack(">12f", *columns[0], *columns[1], *columns[2], *centre)
+    head += struct.pack(">6H", 0, 0, 0, *dims)
+    n = dims[0] * dims[1] * dims[2]
+    if scalar == 3:
+        data = bytes(i % 251 for i in range(n))
+    else:
+        data = struct.pack((">" if endian == 1 else "<") + "%dH" % n, *range(1000, 1000 + n))
+    return head + data
+
+
+def igtl_status(code, name, text):
+    return struct.pack(">Hq20s", code, 0, name.encode()) + text.encode() + b"\0"
+
+
+def igtl():
+    # First byte of every input: the chunk size the target feeds with (value + 1).
+    u8_be = igtl_image((4, 3, 2), 3, 1, 1)
+    u16_be = igtl_image((2, 2, 2), 5, 1, 2)
+    u16_le = igtl_image((3, 2, 2), 5, 2, 1, spacing=(0.3, 0.3, 0.6))
+    u8_le_lps = igtl_image((2, 3, 4), 3, 2, 2)
+    status = igtl_message("STATUS", "Server", igtl_status(1, "OK", "ready"))
+    v1 = [igtl_message("IMAGE", "Image_Reference", c) for c in (u8_be, u16_be, u16_le, u8_le_lps)]
+    v2 = [igtl_message("IMAGE", "Image_Reference", igtl_v2_body(c, i), version=2)
+          for i, c in enumerate((u8_be, u16_le))]
+    put("fuzz_igtl", "v1_images", b"\x39" + status + b"".join(v1))
+    put("fuzz_igtl", "v2_images", b"\x07" + b"".join(v2))
+    put("fuzz_igtl", "v1_uint16_be", b"\xff" + v1[1])
+    put("fuzz_igtl", "v2_uint16_le", b"\x00" + v2[1])
+    put("fuzz_igtl", "status_v2", b"\x20" + igtl_message(
+        "STATUS", "Server", igtl_v2_body(igtl_status(13, "CONFIG", "probe missing"), 9), version=2))
+    bad_crc = bytearray(v1[0])
+    bad_crc[-1] ^= 0xFF
+    put("fuzz_igtl", "bad_crc_then_good", b"\x10" + bytes(bad_crc) + v1[2])
+    put("fuzz_igtl", "truncated_body", b"\x05" + v1[0][:100])
+    put("fuzz_igtl", "truncated_header", b"\x05" + status + v1[0][:30])
+    put("fuzz_igtl", "transform_skip", b"\x3f" + igtl_message(
+        "TRANSFORM", "Probe", struct.pack(">12f", 1, 0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0)) + v1[0])
+
+
 if __name__ == "__main__":
     probe_stream()
     nrrd()
@@ -160,3 +230,4 @@ if __name__ == "__main__":
     ply()
     run_config()
     seed_body()
+    igtl()

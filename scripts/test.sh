@@ -5,7 +5,8 @@
 #   SONOMESH_SANITIZE=address,undefined ./scripts/test.sh
 #       clang build with those sanitizers (assertions on, UBSan halts on the first report) in its
 #       own directory (SONOMESH_BUILD_DIR, default build-asan), the libFuzzer targets included;
-#       runs the whole suite, HIL and the fuzz smoke runs (label fuzz) too.
+#       runs the whole suite, HIL and the fuzz smoke runs (label fuzz) too; with
+#       SONOMESH_FUZZ_CORPUS_ONLY=1 the fuzz entries run their corpora once, unmutated (CI).
 #   SONOMESH_FUZZ=1 ./scripts/test.sh
 #       the same build, only the fuzz targets, only the fuzz smoke runs.
 set -euo pipefail
@@ -22,15 +23,17 @@ fi
 
 "$root/scripts/setup.sh"
 build="${SONOMESH_BUILD_DIR:-$root/build-asan}"
+build_start=$(date +%s)
 CC=clang CXX=clang++ cmake -S "$root" -B "$build" -DCMAKE_BUILD_TYPE=Release \
   -DSONOMESH_SANITIZE="$sanitize" -DSONOMESH_FUZZ=ON >/dev/null
 targets=()
 if [ "$fuzz_only" = 1 ]; then
-  targets=(--target fuzz_probe_stream fuzz_nrrd fuzz_metaimage fuzz_nifti fuzz_ply fuzz_run_config
-           fuzz_seed_body)
+  targets=(--target fuzz_probe_stream fuzz_igtl fuzz_nrrd fuzz_metaimage fuzz_nifti fuzz_ply
+           fuzz_run_config fuzz_seed_body)
   set -- -L fuzz "$@"
 fi
 cmake --build "$build" -j "$(nproc)" "${targets[@]}"
+echo "test.sh: sanitizer build done in $(( $(date +%s) - build_start )) s"
 cd "$build"
 # umockdev's preload library comes before the ASan runtime in the HIL tests' processes, which
 # ASan refuses by default; it works, the order check is what fails. Leaks are findings.

@@ -35,6 +35,21 @@ using namespace sonomesh::testing;
 
 namespace {
 
+// This build's daemon runs under AddressSanitizer (scripts/test.sh SONOMESH_SANITIZE): its
+// allocator keeps freed blocks in a quarantine (256 MB by default) and pads every block, so RSS
+// then measures ASan, not the daemon, and memory bounds are checked in the normal build only.
+#if defined(__SANITIZE_ADDRESS__)
+constexpr bool kAddressSanitizer = true;
+#elif defined(__has_feature)
+#if __has_feature(address_sanitizer)
+constexpr bool kAddressSanitizer = true;
+#else
+constexpr bool kAddressSanitizer = false;
+#endif
+#else
+constexpr bool kAddressSanitizer = false;
+#endif
+
 // Journal checks shared by every test: one line per sequence number, no sequence twice, the
 // fields the design asks for. Returns sequence -> line.
 std::map<std::uint64_t, nlohmann::json> check_journal(const fs::path& out) {
@@ -146,9 +161,17 @@ TEST(DaemonRun, SocketStreamEverySequenceOnceWithThePhantomsGenus) {
   const fs::path out = dir / "out";
   const auto by_seq = check_journal(out);
   expect_contiguous(by_seq, 0, 5);
-  const int processed = count_status(by_seq, "processed");
-  EXPECT_GE(processed, 4) << daemon->stderr_text();  // 4 Hz at 64³ leaves room for every volume
+  // How many of the six the worker keeps up with depends on the machine (under ASan and load it
+  // skipped half); what holds anywhere: the first (the worker is idle) and the last (nothing
+  // supersedes it) are processed, and every other one is processed or skipped as superseded.
+  EXPECT_EQ(by_seq.at(0)["status"], "processed") << daemon->stderr_text();
+  EXPECT_EQ(by_seq.at(5)["status"], "processed") << daemon->stderr_text();
   for (const auto& [seq, line] : by_seq) {
+    if (line["status"] == "skipped") {
+      EXPECT_EQ(line["reason"], "superseded") << line.dump();
+    } else {
+      EXPECT_EQ(line["status"], "processed") << line.dump();
+    }
     if (line["status"] != "processed") continue;
     EXPECT_EQ(line["genus"], 1) << line.dump();
     EXPECT_EQ(genus_of_ply(out / line["mesh"].get<std::string>()), 1) << line.dump();
@@ -191,14 +214,16 @@ TEST(DaemonRun, FastSourceIsSkippedNotQueuedAndMemoryStaysFlat) {
   auto daemon = start_daemon(dir, "unix:" + (dir / "probe.sock").string());
   const fs::path out = dir / "out";
   long rss_early = 0, rss_peak = 0;
-  const auto deadline = Clock::now() + 30s;
+  // The limits only catch a hang: under ASan probe-sim alone needs a minute for the 150 volumes.
+  const auto limit = kAddressSanitizer ? 180s : 30s;
+  const auto deadline = Clock::now() + limit;
   while (daemon->running() && Clock::now() < deadline) {
     const long rss = daemon->rss_kb();
     if (rss_early == 0 && fs::exists(out / "latest.ply")) rss_early = rss;
     rss_peak = std::max(rss_peak, rss);
     std::this_thread::sleep_for(50ms);
   }
-  const auto code = daemon->wait(30000ms);
+  const auto code = daemon->wait(std::chrono::duration_cast<std::chrono::milliseconds>(limit));
   ASSERT_TRUE(code.has_value());
   EXPECT_EQ(*code, 0) << daemon->stderr_text();
   const auto by_seq = check_journal(out);
@@ -225,8 +250,10 @@ TEST(DaemonRun, FastSourceIsSkippedNotQueuedAndMemoryStaysFlat) {
   }
   EXPECT_LT(max_latency_ms, 4 * worst_total_ms + 500) << "latency grew with the backlog";
   ASSERT_GT(rss_early, 0);
-  EXPECT_LT(rss_peak - rss_early, 64 * 1024) << "RSS grew from " << rss_early << " kB to "
-                                              << rss_peak << " kB";
+  if (!kAddressSanitizer) {  // under ASan its quarantine grows RSS (see kAddressSanitizer)
+    EXPECT_LT(rss_peak - rss_early, 64 * 1024) << "RSS grew from " << rss_early << " kB to "
+                                                << rss_peak << " kB";
+  }
   expect_no_temporaries(out);
 }
 

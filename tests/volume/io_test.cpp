@@ -362,6 +362,31 @@ TEST(MetaImageRead, DetachedRawAndZlibAttachedAndBigEndianAndShortConversion) {
   EXPECT_EQ(rs.volume.value(2, 1, 1), -11.0f);
 }
 
+// The header is read a block at a time (not as one 1 MiB buffer per file): a header whose lines
+// cross block boundaries reads as before, and the 1 MiB limit still holds.
+TEST(MetaImageRead, HeaderAcrossReadBlocksAndHeaderLimit) {
+  TempDir dir;
+  const std::string pad = "Comment = " + std::string(5000, 'x') + "\n";  // > one 4 KiB block
+  write_file(dir / "long.mha", mha_header("1 0 0 0 1 0 0 0 1", pad) + bytes_0_to(12));
+  const auto r = read_volume(dir / "long.mha");
+  ASSERT_TRUE(r) << r.error->message;
+  expect_matches_file_geometry(r.volume, Vec3f(10, 20, 30), Vec3f(1, 1, 1));
+
+  std::string lines;  // many short lines, ElementDataFile at ~9 KiB into the file
+  for (int i = 0; i < 900; ++i) lines += "Comment = c\n";
+  write_file(dir / "lines.mha", mha_header("1 0 0 0 1 0 0 0 1", lines) + bytes_0_to(12));
+  const auto rl = read_volume(dir / "lines.mha");
+  ASSERT_TRUE(rl) << rl.error->message;
+  EXPECT_EQ(rl.volume.value(2, 1, 1), 11);
+
+  const std::string huge = "Comment = " + std::string(std::size_t{1} << 20, 'x') + "\n";
+  write_file(dir / "huge.mha", mha_header("1 0 0 0 1 0 0 0 1", huge) + bytes_0_to(12));
+  const auto rh = read_volume(dir / "huge.mha");
+  ASSERT_FALSE(rh);
+  EXPECT_EQ(rh.error->code, Code::BadHeader);
+  EXPECT_NE(rh.error->message.find("longer than 1 MiB"), std::string::npos) << rh.error->message;
+}
+
 // ---------------------------------------------------------------------------------------------
 // Malformed files: each gets its own code and a one-line message; nothing crashes.
 
