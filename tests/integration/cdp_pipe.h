@@ -12,9 +12,9 @@
 #include <string>
 #include <vector>
 
-#include "web_test_util.h"
+#include "child_process.h"
 
-namespace webtest {
+namespace sonomesh::testing {
 
 class Chromium {
  public:
@@ -48,7 +48,7 @@ class Chromium {
                                      "--user-data-dir=" + (scratch / "chromium-profile").string(),
                                      "--remote-debugging-pipe",
                                      "about:blank"};
-    process_ = std::make_unique<Process>(
+    process_ = std::make_unique<Child>(
         argv, scratch / "chromium", std::vector<std::string>{},
         std::vector<std::pair<int, int>>{{3, to_child[0]}, {4, from_child[1]}});
     ::close(to_child[0]);
@@ -170,11 +170,11 @@ class Chromium {
     return out;
   }
 
-  std::unique_ptr<Process> process_;
+  std::unique_ptr<Child> process_;
   int write_fd_ = -1, read_fd_ = -1;
   int last_id_ = 0;
   std::string buffer_;
   std::string last_error_;
 };
 
-}  // namespace webtest
+}  // namespace sonomesh::testing
