@@ -64,28 +64,46 @@ int run(int argc, char** argv) {
   std::vector<std::string> names;
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
-    if (a == "--size" && i + 1 < argc) size = std::atoi(argv[++i]);
-    else if (a == "--repeat" && i + 1 < argc) repeat = std::atoi(argv[++i]);
-    else if (a == "--threads" && i + 1 < argc) threads = std::atoi(argv[++i]);
-    else if (a == "--seed" && i + 1 < argc) phantom_seed = std::atoi(argv[++i]);
-    else if (a == "--max-iterations" && i + 1 < argc) max_iterations = std::atoi(argv[++i]);
-    else if (a == "--noise-allowance") noise_allowance = true;
-    else if (a == "--no-noise-allowance") noise_allowance = false;
-    else if (a == "--plain-cost") relative = false;
-    else if (a == "--dot-rise") per_axis = false;
-    else if (a == "--no-snap") snap = false;
-    else if (a == "--max-area" && i + 1 < argc) max_area = static_cast<float>(std::atof(argv[++i]));
-    else if (a == "--fraction" && i + 1 < argc) fraction = static_cast<float>(std::atof(argv[++i]));
+    if (a == "--size" && i + 1 < argc)
+      size = std::atoi(argv[++i]);
+    else if (a == "--repeat" && i + 1 < argc)
+      repeat = std::atoi(argv[++i]);
+    else if (a == "--threads" && i + 1 < argc)
+      threads = std::atoi(argv[++i]);
+    else if (a == "--seed" && i + 1 < argc)
+      phantom_seed = std::atoi(argv[++i]);
+    else if (a == "--max-iterations" && i + 1 < argc)
+      max_iterations = std::atoi(argv[++i]);
+    else if (a == "--noise-allowance")
+      noise_allowance = true;
+    else if (a == "--no-noise-allowance")
+      noise_allowance = false;
+    else if (a == "--plain-cost")
+      relative = false;
+    else if (a == "--dot-rise")
+      per_axis = false;
+    else if (a == "--no-snap")
+      snap = false;
+    else if (a == "--max-area" && i + 1 < argc)
+      max_area = static_cast<float>(std::atof(argv[++i]));
+    else if (a == "--fraction" && i + 1 < argc)
+      fraction = static_cast<float>(std::atof(argv[++i]));
     else if (a.rfind("--", 0) == 0) {
-      std::fprintf(stderr, "balloon_bench: unknown option '%s' (see the usage at the top of bench/balloon_bench.cpp)\n", a.c_str());
+      std::fprintf(stderr,
+                   "balloon_bench: unknown option '%s' (see the usage at the top of "
+                   "bench/balloon_bench.cpp)\n",
+                   a.c_str());
       return 2;
-    } else names.push_back(a);
+    } else
+      names.push_back(a);
   }
   if (names.empty()) names = {"sphere", "torus", "cyst-needle"};
   std::printf("%-12s %5s %13s %6s %6s  %-28s %7s  %s\n", "phantom", "size", "ms med/min", "iters",
-              "verts", "stops mov/bnd/crv/self/lim", "tau", "wall dist vox (bnd) mean/p95/max, inside-truth %, bnd beyond 4 vox");
+              "verts", "stops mov/bnd/crv/self/lim", "tau",
+              "wall dist vox (bnd) mean/p95/max, inside-truth %, bnd beyond 4 vox");
   for (const auto& name : names) {
-    const auto ph = sim::make_phantom({.phantom = name, .size_vox = size, .seed = static_cast<std::uint32_t>(phantom_seed)});
+    const auto ph = sim::make_phantom(
+        {.phantom = name, .size_vox = size, .seed = static_cast<std::uint32_t>(phantom_seed)});
     const float vox = ph.image.spacing_mm().minCoeff();
     const auto smoothed = volume::smooth_gaussian(ph.image, vox);
     const auto gradient = volume::central_gradient(smoothed);
@@ -93,13 +111,23 @@ int run(int argc, char** argv) {
     segment::BalloonResult r;
     for (int k = 0; k < repeat; ++k) {
       const auto t0 = std::chrono::steady_clock::now();
-      r = segment::inflate_balloon(smoothed, gradient, ph.seed_mm, {.relative_cost = relative, .tau_cost_fraction = fraction, .rise_per_axis = per_axis, .noise_allowance = noise_allowance, .snap_to_wall = snap, .max_iterations = max_iterations, .max_area_fraction = max_area, .threads = threads});
-      ms.push_back(std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count());
+      r = segment::inflate_balloon(smoothed, gradient, ph.seed_mm,
+                                   {.relative_cost = relative,
+                                    .tau_cost_fraction = fraction,
+                                    .rise_per_axis = per_axis,
+                                    .noise_allowance = noise_allowance,
+                                    .snap_to_wall = snap,
+                                    .max_iterations = max_iterations,
+                                    .max_area_fraction = max_area,
+                                    .threads = threads});
+      ms.push_back(
+          std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count());
     }
     std::sort(ms.begin(), ms.end());
     if (!r.error.empty()) {
       std::printf("%-12s %5d  error: %s (r0 %.2f mm, %d iterations, %.0f ms)\n", name.c_str(), size,
-                  r.error.c_str(), r.stats.initial_radius_mm, r.stats.iterations, ms[ms.size() / 2]);
+                  r.error.c_str(), r.stats.initial_radius_mm, r.stats.iterations,
+                  ms[ms.size() / 2]);
       continue;
     }
     std::vector<float> dist;
@@ -108,16 +136,21 @@ int run(int argc, char** argv) {
       const Vec3f u = ph.truth.mm_to_index(r.mesh.vertices[i]);
       const Vec3i c(static_cast<int>(std::lround(u.x())), static_cast<int>(std::lround(u.y())),
                     static_cast<int>(std::lround(u.z())));
-      if (ph.truth.contains_index(c) && ph.truth.u8()[ph.truth.linear_index(c.x(), c.y(), c.z())]) ++inside;
-      if (r.stop[i] == segment::StopReason::Boundary) dist.push_back(wall_distance_vox(ph.truth, r.mesh.vertices[i]));
+      if (ph.truth.contains_index(c) && ph.truth.u8()[ph.truth.linear_index(c.x(), c.y(), c.z())])
+        ++inside;
+      if (r.stop[i] == segment::StopReason::Boundary)
+        dist.push_back(wall_distance_vox(ph.truth, r.mesh.vertices[i]));
     }
     if (std::getenv("BALLOON_BENCH_VERBOSE"))
       for (std::size_t i = 0; i < r.mesh.vertices.size(); ++i)
-        if (r.stop[i] == segment::StopReason::IterationLimit || r.stop[i] == segment::StopReason::Curvature ||
-            (r.stop[i] == segment::StopReason::Boundary && wall_distance_vox(ph.truth, r.mesh.vertices[i]) > 1.0f)) {
+        if (r.stop[i] == segment::StopReason::IterationLimit ||
+            r.stop[i] == segment::StopReason::Curvature ||
+            (r.stop[i] == segment::StopReason::Boundary &&
+             wall_distance_vox(ph.truth, r.mesh.vertices[i]) > 1.0f)) {
           const Vec3f u = ph.truth.mm_to_index(r.mesh.vertices[i]);
-          std::printf("    v%zu stop %d at ijk (%.1f %.1f %.1f) wall %.2f vox\n", i, static_cast<int>(r.stop[i]),
-                      u.x(), u.y(), u.z(), wall_distance_vox(ph.truth, r.mesh.vertices[i]));
+          std::printf("    v%zu stop %d at ijk (%.1f %.1f %.1f) wall %.2f vox\n", i,
+                      static_cast<int>(r.stop[i]), u.x(), u.y(), u.z(),
+                      wall_distance_vox(ph.truth, r.mesh.vertices[i]));
         }
     std::sort(dist.begin(), dist.end());
     // wall_distance_vox() has no wall within its reach for these (in the needle, far in tissue, or
@@ -131,17 +164,23 @@ int run(int argc, char** argv) {
     const auto& s = r.stats.stop_counts;
     char stops[64];
     std::snprintf(stops, sizeof stops, "%d/%d/%d/%d/%d", s[0], s[1], s[2], s[3], s[4]);
-    std::printf("%-12s %5d %6.1f/%6.1f %6d %6zu  %-28s %7.2f  %.2f/%.2f/%.2f, %.1f%%, %ld\n", name.c_str(), size,
-                ms[ms.size() / 2], ms.front(), r.stats.iterations, r.mesh.vertices.size(), stops, r.stats.tau_cost_used,
-                mean, dist.empty() ? 0.0f : dist[dist.size() * 95 / 100],
-                dist.empty() ? 0.0f : dist.back(), 100.0 * inside / std::max<std::size_t>(1, r.mesh.vertices.size()), far);
-    std::printf("    seed level %.1f sigma %.1f tissue %.1f rho %.2f/mm r0 %.2f mm, remesh %d (splits %d, collapses %d)%s%s\n",
-                r.stats.seed_level, r.stats.seed_sigma, r.stats.tissue_level, r.stats.noise_rise_per_mm, r.stats.initial_radius_mm,
-                r.stats.remesh_passes, r.stats.splits, r.stats.collapses, r.stats.stalled ? ", stalled" : "",
-                r.converged ? ", converged" : "");
-    std::printf("    phases (last run) ms: evolve %.1f, normals %.1f, mark A_t %.1f, remesh %.1f; %lld vertex-iterations\n",
-                r.stats.evolve_ms, r.stats.normals_ms, r.stats.mark_ms, r.stats.remesh_ms,
-                static_cast<long long>(r.stats.vertex_iterations));
+    std::printf("%-12s %5d %6.1f/%6.1f %6d %6zu  %-28s %7.2f  %.2f/%.2f/%.2f, %.1f%%, %ld\n",
+                name.c_str(), size, ms[ms.size() / 2], ms.front(), r.stats.iterations,
+                r.mesh.vertices.size(), stops, r.stats.tau_cost_used, mean,
+                dist.empty() ? 0.0f : dist[dist.size() * 95 / 100],
+                dist.empty() ? 0.0f : dist.back(),
+                100.0 * inside / std::max<std::size_t>(1, r.mesh.vertices.size()), far);
+    std::printf(
+        "    seed level %.1f sigma %.1f tissue %.1f rho %.2f/mm r0 %.2f mm, remesh %d (splits %d, "
+        "collapses %d)%s%s\n",
+        r.stats.seed_level, r.stats.seed_sigma, r.stats.tissue_level, r.stats.noise_rise_per_mm,
+        r.stats.initial_radius_mm, r.stats.remesh_passes, r.stats.splits, r.stats.collapses,
+        r.stats.stalled ? ", stalled" : "", r.converged ? ", converged" : "");
+    std::printf(
+        "    phases (last run) ms: evolve %.1f, normals %.1f, mark A_t %.1f, remesh %.1f; %lld "
+        "vertex-iterations\n",
+        r.stats.evolve_ms, r.stats.normals_ms, r.stats.mark_ms, r.stats.remesh_ms,
+        static_cast<long long>(r.stats.vertex_iterations));
     // A_t's sparse grid against a dense one of 4 bytes per voxel (what it replaced).
     std::printf("    A_t: %zu voxels swept, %.2f MB (dense: %.2f MB)\n", r.stats.front_voxels,
                 static_cast<double>(r.stats.front_grid_bytes) / 1e6,

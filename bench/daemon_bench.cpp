@@ -26,11 +26,10 @@
 #include <fstream>
 #include <iostream>
 #include <map>
+#include <nlohmann/json.hpp>
 #include <string>
 #include <thread>
 #include <vector>
-
-#include <nlohmann/json.hpp>
 
 #include "acquire/protocol.h"
 #include "sim/phantom_source.h"
@@ -80,14 +79,22 @@ int main(int argc, char** argv) {
   Args a;
   for (int i = 1; i + 1 < argc; i += 2) {
     const std::string k = argv[i], v = argv[i + 1];
-    if (k == "--size") a.size = std::stoi(v);
-    else if (k == "--rate") a.rate = std::stod(v);
-    else if (k == "--count") a.count = std::stoi(v);
-    else if (k == "--phantom") a.phantom = v;
-    else if (k == "--sonomeshd") a.sonomeshd = v;
-    else if (k == "--probe-sim") a.probe_sim = v;
-    else if (k == "--work") a.work = v;
-    else if (k == "--json") a.json_out = v;
+    if (k == "--size")
+      a.size = std::stoi(v);
+    else if (k == "--rate")
+      a.rate = std::stod(v);
+    else if (k == "--count")
+      a.count = std::stoi(v);
+    else if (k == "--phantom")
+      a.phantom = v;
+    else if (k == "--sonomeshd")
+      a.sonomeshd = v;
+    else if (k == "--probe-sim")
+      a.probe_sim = v;
+    else if (k == "--work")
+      a.work = v;
+    else if (k == "--json")
+      a.json_out = v;
     else {
       std::fprintf(stderr, "daemon_bench: unknown option %s\n", k.c_str());
       return 2;
@@ -117,8 +124,7 @@ int main(int argc, char** argv) {
                 static_cast<std::streamsize>(bytes->size()));
     }
     const auto eos = sonomesh::acquire::encode_end_of_stream(
-        static_cast<std::uint64_t>(a.count),
-        static_cast<std::uint64_t>(a.count / a.rate * 1e9));
+        static_cast<std::uint64_t>(a.count), static_cast<std::uint64_t>(a.count / a.rate * 1e9));
     out.write(reinterpret_cast<const char*>(eos.data()), static_cast<std::streamsize>(eos.size()));
   }
   std::fprintf(stderr, "daemon_bench: recorded %d volumes of %d^3 in %.1f s\n", a.count, a.size,
@@ -183,9 +189,10 @@ int main(int argc, char** argv) {
       {"counts", counts},
       {"processed_per_s", processed / stream_s},
       {"kept_up_fraction", static_cast<double>(processed) / a.count},
-      {"latency_ms", {{"p50", quantile(latency, 0.5)},
-                      {"p95", quantile(latency, 0.95)},
-                      {"max", quantile(latency, 1.0)}}},
+      {"latency_ms",
+       {{"p50", quantile(latency, 0.5)},
+        {"p95", quantile(latency, 0.95)},
+        {"max", quantile(latency, 1.0)}}},
       {"daemon_overhead_ms", {{"p50", quantile(overhead, 0.5)}, {"p95", quantile(overhead, 0.95)}}},
       {"peak_rss_mb", usage.ru_maxrss / 1024.0},
       {"cpu_s", usage.ru_utime.tv_sec + usage.ru_utime.tv_usec / 1e6 + usage.ru_stime.tv_sec +
@@ -196,14 +203,14 @@ int main(int argc, char** argv) {
   for (const auto& [stage, sum] : stage_sum) stages[stage] = processed ? sum / processed : 0.0;
   report["mean_stage_ms"] = stages;
   std::cout << report.dump(2) << "\n";
-  std::printf("daemon_bench %d^3 at %.0f volumes/s: processed %d/%d (%.1f/s), skipped %d, "
-              "latency p50 %.0f ms p95 %.0f ms (daemon overhead p50 %.0f ms), peak RSS %.0f MB "
-              "-> %s\n",
-              a.size, a.rate, processed, a.count, processed / stream_s, counts["skipped"],
-              quantile(latency, 0.5), quantile(latency, 0.95), quantile(overhead, 0.5),
-              usage.ru_maxrss / 1024.0,
-              (processed == a.count && quantile(latency, 0.95) <= 150) ? "targets met"
-                                                                       : "targets NOT met");
+  std::printf(
+      "daemon_bench %d^3 at %.0f volumes/s: processed %d/%d (%.1f/s), skipped %d, "
+      "latency p50 %.0f ms p95 %.0f ms (daemon overhead p50 %.0f ms), peak RSS %.0f MB "
+      "-> %s\n",
+      a.size, a.rate, processed, a.count, processed / stream_s, counts["skipped"],
+      quantile(latency, 0.5), quantile(latency, 0.95), quantile(overhead, 0.5),
+      usage.ru_maxrss / 1024.0,
+      (processed == a.count && quantile(latency, 0.95) <= 150) ? "targets met" : "targets NOT met");
   if (!a.json_out.empty()) std::ofstream(a.json_out) << report.dump(2) << "\n";
   return 0;
 }

@@ -25,17 +25,21 @@ int main(int argc, char** argv) {
   int volumes = 300;
   int size = 128;
   for (int i = 1; i + 1 < argc; i += 2) {
-    if (std::strcmp(argv[i], "--volumes") == 0) volumes = std::atoi(argv[i + 1]);
-    else if (std::strcmp(argv[i], "--size") == 0) size = std::atoi(argv[i + 1]);
+    if (std::strcmp(argv[i], "--volumes") == 0)
+      volumes = std::atoi(argv[i + 1]);
+    else if (std::strcmp(argv[i], "--size") == 0)
+      size = std::atoi(argv[i + 1]);
   }
-  const std::string path =
-      (std::filesystem::temp_directory_path() / ("ingest_bench_" + std::to_string(::getpid()) + ".sock")).string();
+  const std::string path = (std::filesystem::temp_directory_path() /
+                            ("ingest_bench_" + std::to_string(::getpid()) + ".sock"))
+                               .string();
   const int listen_fd = ::socket(AF_UNIX, SOCK_STREAM, 0);
   sockaddr_un addr{};
   addr.sun_family = AF_UNIX;
   std::strncpy(addr.sun_path, path.c_str(), sizeof addr.sun_path - 1);
   ::unlink(path.c_str());
-  if (::bind(listen_fd, reinterpret_cast<sockaddr*>(&addr), sizeof addr) != 0 || ::listen(listen_fd, 1) != 0) {
+  if (::bind(listen_fd, reinterpret_cast<sockaddr*>(&addr), sizeof addr) != 0 ||
+      ::listen(listen_fd, 1) != 0) {
     std::perror("bind/listen");
     return 1;
   }
@@ -95,8 +99,9 @@ int main(int argc, char** argv) {
   ::close(listen_fd);
   ::unlink(path.c_str());
   const double vps = received / seconds;
-  std::printf("ingest_bench: %d volumes of %d^3 uint8 over unix socket in %.3f s: %.1f volumes/s, "
-              "%.1f MB/s payload, %d errors (target >= 30 volumes/s: %s)\n",
-              received, size, seconds, vps, bytes / seconds / 1e6, errors, vps >= 30 ? "met" : "MISSED");
+  std::printf(
+      "ingest_bench: %d volumes of %d^3 uint8 over unix socket in %.3f s: %.1f volumes/s, "
+      "%.1f MB/s payload, %d errors (target >= 30 volumes/s: %s)\n",
+      received, size, seconds, vps, bytes / seconds / 1e6, errors, vps >= 30 ? "met" : "MISSED");
   return received == volumes && errors == 0 ? 0 : 1;
 }

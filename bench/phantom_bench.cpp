@@ -1,5 +1,5 @@
-// Phantom generation speed: the daemon's `sim:` source generates volumes live (up to 10/s at 128^3),
-// so make_phantom must stay well under 100 ms there once the speckle field is cached.
+// Phantom generation speed: the daemon's `sim:` source generates volumes live (up to 10/s at
+// 128^3), so make_phantom must stay well under 100 ms there once the speckle field is cached.
 // Prints wall time and process CPU time (both cores), median of several runs.
 #include <sys/resource.h>
 
@@ -15,7 +15,8 @@ namespace {
 double cpu_ms() {
   rusage u{};
   getrusage(RUSAGE_SELF, &u);
-  return (u.ru_utime.tv_sec + u.ru_stime.tv_sec) * 1e3 + (u.ru_utime.tv_usec + u.ru_stime.tv_usec) * 1e-3;
+  return (u.ru_utime.tv_sec + u.ru_stime.tv_sec) * 1e3 +
+         (u.ru_utime.tv_usec + u.ru_stime.tv_usec) * 1e-3;
 }
 
 double median(std::vector<double> v) {
@@ -51,8 +52,8 @@ int main() {
         cached.push_back(std::chrono::duration<double, std::milli>(t2 - t1).count());
         cpu.push_back(c1 - c0);
       }
-      std::printf("%-13s %5d %16.1f %16.1f %16.1f\n", name.c_str(), size, median(fresh), median(cached),
-                  median(cpu));
+      std::printf("%-13s %5d %16.1f %16.1f %16.1f\n", name.c_str(), size, median(fresh),
+                  median(cached), median(cpu));
     }
   }
 }

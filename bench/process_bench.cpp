@@ -39,8 +39,8 @@ struct Fnv1a {
 
 int print_hashes(const std::vector<int>& sizes, const std::vector<std::string>& phantoms,
                  const std::vector<int>& threads) {
-  std::printf("%-12s %5s %7s %-18s %-18s %s\n", "phantom", "size", "threads", "balloon",
-              "mesh", "genus");
+  std::printf("%-12s %5s %7s %-18s %-18s %s\n", "phantom", "size", "threads", "balloon", "mesh",
+              "genus");
   for (const int size : sizes)
     for (const std::string& name : phantoms)
       for (const int t : threads) {
@@ -48,7 +48,8 @@ int print_hashes(const std::vector<int>& sizes, const std::vector<std::string>& 
         daemon::PipelineConfig config;
         config.balloon.threads = t;
         config.poisson.fft_threads = t;
-        const daemon::PipelineResult r = daemon::run_pipeline(phantom.image, phantom.seed_mm, config);
+        const daemon::PipelineResult r =
+            daemon::run_pipeline(phantom.image, phantom.seed_mm, config);
         Fnv1a balloon, mesh;
         balloon.add_all(r.balloon.vertices);
         balloon.add_all(r.balloon_stop);
@@ -102,8 +103,9 @@ int main(int argc, char** argv) {
     }
   }
   if (format == "md") {
-    std::printf("| phantom | size | smooth | balloon | opening | reconstruct | mesh | reinflate | labels "
-                "| total (ms) | target | balloon iterations | grid |\n");
+    std::printf(
+        "| phantom | size | smooth | balloon | opening | reconstruct | mesh | reinflate | labels "
+        "| total (ms) | target | balloon iterations | grid |\n");
     std::printf("|---|---|---|---|---|---|---|---|---|---|---|---|---|\n");
   }
   try {
@@ -135,12 +137,15 @@ int main(int argc, char** argv) {
                                  std::to_string(result.grid_dims.y()) + "x" +
                                  std::to_string(result.grid_dims.z());
         if (format == "json") {
-          nlohmann::json row = {{"phantom", name},        {"size", size},
-                                {"ok", result.ok},        {"smooth_ms", median(smooth)},
+          nlohmann::json row = {{"phantom", name},
+                                {"size", size},
+                                {"ok", result.ok},
+                                {"smooth_ms", median(smooth)},
                                 {"balloon_ms", median(balloon)},
                                 {"opening_ms", median(opening)},
                                 {"reconstruct_ms", median(reconstruct)},
-                                {"mesh_ms", median(mesh)}, {"reinflate_ms", median(reinflate)},
+                                {"mesh_ms", median(mesh)},
+                                {"reinflate_ms", median(reinflate)},
                                 {"labels_ms", median(labels)},
                                 {"total_ms", median(total)},
                                 {"target_ms", target_ms},
@@ -148,11 +153,13 @@ int main(int argc, char** argv) {
                                 {"grid", grid}};
           std::printf("%s\n", row.dump().c_str());
         } else {
-          std::printf("| %s%s | %d³ | %.1f | %.1f | %.1f | %.1f | %.1f | %.1f | %.1f | %.1f | %s %.0f | %d | %s |\n",
-                      name.c_str(), result.ok ? "" : " (failed)", size, median(smooth),
-                      median(balloon), median(opening), median(reconstruct), median(mesh),
-                      median(reinflate), median(labels), median(total), median(total) <= target_ms ? "≤" : "> (missed)", target_ms,
-                      result.balloon_iterations, grid.c_str());
+          std::printf(
+              "| %s%s | %d³ | %.1f | %.1f | %.1f | %.1f | %.1f | %.1f | %.1f | %.1f | %s %.0f | %d "
+              "| %s |\n",
+              name.c_str(), result.ok ? "" : " (failed)", size, median(smooth), median(balloon),
+              median(opening), median(reconstruct), median(mesh), median(reinflate), median(labels),
+              median(total), median(total) <= target_ms ? "≤" : "> (missed)", target_ms,
+              result.balloon_iterations, grid.c_str());
         }
         std::fflush(stdout);
       }

@@ -3,12 +3,13 @@
 // Reports volumes/s and MB/s. Re-executes itself under libumockdev-preload like the hil tests.
 //
 //   usb_ingest_bench [--seconds S] [--size N] [--uint16]
+#include <unistd.h>
+
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
 #include <string>
-#include <unistd.h>
 #include <vector>
 
 #include "acquire/acquire.h"
@@ -97,15 +98,18 @@ int run(double seconds, int size, bool uint16) {
   }
   const double wall = std::chrono::duration<double>(Clock::now() - t0).count();
   const double cpu = static_cast<double>(std::clock() - c0) / CLOCKS_PER_SEC;
-  std::printf("usb_ingest_bench: %d^3 %s volumes over emulated USB (libusb async bulk IN, 4 x 1 MiB)\n",
-              size, uint16 ? "uint16" : "uint8");
+  std::printf(
+      "usb_ingest_bench: %d^3 %s volumes over emulated USB (libusb async bulk IN, 4 x 1 MiB)\n",
+      size, uint16 ? "uint16" : "uint8");
   std::printf("  volumes        %llu in %.2f s\n", static_cast<unsigned long long>(volumes), wall);
-  std::printf("  rate           %.1f volumes/s (target >= 30)\n", static_cast<double>(volumes) / wall);
+  std::printf("  rate           %.1f volumes/s (target >= 30)\n",
+              static_cast<double>(volumes) / wall);
   std::printf("  throughput     %.1f MB/s of records (%.2f MB each), %.1f MB/s voxels\n",
               static_cast<double>(volumes) * static_cast<double>(record_bytes) / wall / 1e6,
-              static_cast<double>(record_bytes) / 1e6, static_cast<double>(voxel_bytes) / wall / 1e6);
-  std::printf("  process cpu    %.2f s (%.0f%% of one core, host and emulated device together)\n", cpu,
-              100.0 * cpu / wall);
+              static_cast<double>(record_bytes) / 1e6,
+              static_cast<double>(voxel_bytes) / wall / 1e6);
+  std::printf("  process cpu    %.2f s (%.0f%% of one core, host and emulated device together)\n",
+              cpu, 100.0 * cpu / wall);
   // On a shared machine the rate is bounded by the CPU share the process gets (every URB is a
   // round trip between the host thread and umockdev's thread); the CPU cost per volume says what
   // an unloaded core could sustain.

@@ -14,9 +14,12 @@ Volume noise(int n, VoxelType type) {
   std::mt19937 rng(1);
   for (std::size_t i = 0; i < v.voxel_count(); ++i) {
     const auto x = static_cast<std::uint8_t>(rng());
-    if (type == VoxelType::UInt8) v.u8()[i] = x;
-    else if (type == VoxelType::UInt16) v.u16()[i] = x;
-    else v.f32()[i] = x;
+    if (type == VoxelType::UInt8)
+      v.u8()[i] = x;
+    else if (type == VoxelType::UInt16)
+      v.u16()[i] = x;
+    else
+      v.f32()[i] = x;
   }
   return v;
 }
@@ -52,7 +55,11 @@ void BM_CentralGradient(benchmark::State& state) {
     benchmark::DoNotOptimize(g.gx.f32().data());
   }
 }
-BENCHMARK(BM_CentralGradient)->Arg(128)->Unit(benchmark::kMillisecond)->MeasureProcessCPUTime()->UseRealTime();
+BENCHMARK(BM_CentralGradient)
+    ->Arg(128)
+    ->Unit(benchmark::kMillisecond)
+    ->MeasureProcessCPUTime()
+    ->UseRealTime();
 
 void BM_SampleGradient(benchmark::State& state) {
   const Volume v = noise(128, VoxelType::Float32);

@@ -89,7 +89,8 @@ nlohmann::json run_item(const BatchItem& item, const fs::path& out, PipelineBuff
   line["report"] = report_path.filename().string();
   if (!result.ok) return failed(result.error);
   const fs::path mesh_path = out / (item.id + ".ply");
-  if (auto problem = internal::write_mesh_ply(result.mesh, input, mesh_path)) return failed(*problem);
+  if (auto problem = internal::write_mesh_ply(result.mesh, input, mesh_path))
+    return failed(*problem);
   line["status"] = "processed";
   line["mesh"] = mesh_path.filename().string();
   line["genus"] = result.topology.genus;

@@ -46,8 +46,8 @@ struct PipelineConfig {
   /// (segment::reinflate): gives back what the reconstruction's smoothing takes from thin parts.
   bool reinflate = true;
   segment::ReinflateOptions reinflate_pass;
-  bool want_labels = true;     // label volume on the input grid (inside = 1)
-  bool want_indicator = false; // the indicator function χ as a Float32 volume (for .vdb output)
+  bool want_labels = true;      // label volume on the input grid (inside = 1)
+  bool want_indicator = false;  // the indicator function χ as a Float32 volume (for .vdb output)
 };
 
 /// Wall-clock time per stage in ms; `total` includes everything run_pipeline did. `labels` is the
@@ -81,17 +81,18 @@ struct PipelineResult {
   reconstruct::Topology topology;  // of `mesh`
   double enclosed_volume_ml = 0.0;
 
-  segment::Mesh balloon;                      // the balloon when evolution ended, mm
+  segment::Mesh balloon;                          // the balloon when evolution ended, mm
   std::vector<segment::StopReason> balloon_stop;  // per balloon vertex
   StopCounts stop_counts;
   int balloon_iterations = 0;
   bool balloon_converged = false;  // every vertex stopped or the evolution stalled
   segment::BalloonStats balloon_stats;
-  int opened_points = 0;           // oriented samples left after the opening
-  Vec3i grid_dims = Vec3i::Zero(); // reconstruction grid
+  int opened_points = 0;            // oriented samples left after the opening
+  Vec3i grid_dims = Vec3i::Zero();  // reconstruction grid
   float grid_cell_mm = 0.0f;
   float grid_feature_mm = std::numeric_limits<float>::infinity();  // narrowest feature the
-                                   // samples showed (infinity: none thin enough to matter)
+                                                                   // samples showed (infinity: none
+                                                                   // thin enough to matter)
 
   /// The polarity the pipeline segmented with (never Auto: auto resolves to dark or bright).
   TargetPolarity target = TargetPolarity::Dark;

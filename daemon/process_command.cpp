@@ -88,11 +88,13 @@ int run_process(const ProcessArgs& args) {
   if (!args.seed_index.empty())
     for (double v : *triple)
       if (v != static_cast<double>(static_cast<long long>(v)))
-        return fail(kBadArguments, "--seed-index expects integer voxel indices, got '" +
-                                       seed_text + "'");
-  const std::vector<std::pair<std::string, std::string>> outputs = {
-      {"--mesh", args.mesh}, {"--labels", args.labels}, {"--report", args.report},
-      {"--balloon", args.balloon}, {"--vdb", args.vdb}};
+        return fail(kBadArguments,
+                    "--seed-index expects integer voxel indices, got '" + seed_text + "'");
+  const std::vector<std::pair<std::string, std::string>> outputs = {{"--mesh", args.mesh},
+                                                                    {"--labels", args.labels},
+                                                                    {"--report", args.report},
+                                                                    {"--balloon", args.balloon},
+                                                                    {"--vdb", args.vdb}};
   for (const auto& [option, path] : outputs)
     if (auto problem = check_writable(option, path)) return fail(kFailed, *problem);
 
@@ -100,7 +102,8 @@ int run_process(const ProcessArgs& args) {
   if (!read) return fail(kFailed, read.error->message);
   const volume::Volume& input = read.volume;
   if (!read.note.empty())
-    std::fprintf(stderr, "sonomeshd process: note: %s: %s\n", args.input.c_str(), read.note.c_str());
+    std::fprintf(stderr, "sonomeshd process: note: %s: %s\n", args.input.c_str(),
+                 read.note.c_str());
 
   Vec3f seed_mm;
   if (!args.seed_index.empty()) {
@@ -115,7 +118,8 @@ int run_process(const ProcessArgs& args) {
     seed_mm = input.index_to_mm(ijk.cast<float>());
   } else {
     // --seed-mm is in the world frame (LPS mm); the pipeline runs in the grid frame.
-    seed_mm = internal::seed_world_to_grid_mm(input, Vec3f((*triple)[0], (*triple)[1], (*triple)[2]));
+    seed_mm =
+        internal::seed_world_to_grid_mm(input, Vec3f((*triple)[0], (*triple)[1], (*triple)[2]));
   }
   if (auto problem = check_seed(input, seed_mm, args.target)) return fail(kFailed, *problem);
 
@@ -135,9 +139,10 @@ int run_process(const ProcessArgs& args) {
   // A suspect result is still written (DESIGN.md): one warning line, exit 0.
   if (!result.quality_ok) {
     std::string reasons;
-    for (const std::string& r : result.quality_reasons) reasons += (reasons.empty() ? "" : ", ") + r;
-    std::fprintf(stderr, "sonomeshd process: warning: %s: result is suspect (%s)\n", args.input.c_str(),
-                 reasons.c_str());
+    for (const std::string& r : result.quality_reasons)
+      reasons += (reasons.empty() ? "" : ", ") + r;
+    std::fprintf(stderr, "sonomeshd process: warning: %s: result is suspect (%s)\n",
+                 args.input.c_str(), reasons.c_str());
   }
 
   if (auto problem = internal::write_mesh_file(result.mesh, input, args.mesh))
@@ -147,8 +152,8 @@ int run_process(const ProcessArgs& args) {
             internal::write_balloon_ply(result.balloon, result.balloon_stop, input, args.balloon))
       return fail(kFailed, *problem);
   if (!args.labels.empty() && result.labels)
-    if (auto problem = internal::write_labels(*result.labels, input, args.labels,
-                                              {args.labels_description}))
+    if (auto problem =
+            internal::write_labels(*result.labels, input, args.labels, {args.labels_description}))
       return fail(kFailed, *problem);
   if (!args.vdb.empty() && result.indicator)
     if (auto problem = internal::write_indicator_vdb(*result.indicator, args.vdb))
@@ -176,7 +181,8 @@ void add_process_command(CLI::App& app, int& exit_code) {
   cmd->add_flag("--labels-description", args->labels_description,
                 "Also write an ITK-SNAP label description (X.label.txt) beside the labels");
   cmd->add_option("--report", args->report, "Output report (JSON)");
-  cmd->add_option("--balloon", args->balloon, "Output balloon mesh with per-vertex stop reasons (PLY)");
+  cmd->add_option("--balloon", args->balloon,
+                  "Output balloon mesh with per-vertex stop reasons (PLY)");
   cmd->add_option("--vdb", args->vdb, "Output indicator function (OpenVDB)");
   cmd->add_option("--target", args->target, "Target polarity: dark (default), bright, auto")
       ->transform(CLI::CheckedTransformer(

@@ -101,8 +101,8 @@ struct BalloonStats {
   float seed_sigma = 0.0f;           // its standard deviation
   float tissue_level = 0.0f;         // estimated surrounding tissue level (ray sampling)
   float noise_rise_per_mm = 0.0f;    // ρ, grey levels per mm
-  float initial_radius_mm = 0.0f;     // the sphere's (0 for a warm start)
-  bool warm_start = false;             // started from a given mesh (inflate_balloon_from)
+  float initial_radius_mm = 0.0f;    // the sphere's (0 for a warm start)
+  bool warm_start = false;           // started from a given mesh (inflate_balloon_from)
   int remesh_passes = 0;
   int splits = 0;
   int collapses = 0;

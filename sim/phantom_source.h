@@ -8,7 +8,6 @@
 #include <cstdint>
 #include <memory>
 #include <string>
-
 #include <tl/expected.hpp>
 
 #include "acquire/acquire.h"
@@ -17,9 +16,9 @@
 namespace sonomesh::sim {
 
 struct PhantomSourceOptions {
-  PhantomSpec spec;        // time_s is set per volume: sequence / rate_hz (the target breathes)
-  double rate_hz = 10.0;   // volumes per second (> 0)
-  std::uint64_t count = 0; // volumes before end of stream; 0 = endless
+  PhantomSpec spec;         // time_s is set per volume: sequence / rate_hz (the target breathes)
+  double rate_hz = 10.0;    // volumes per second (> 0)
+  std::uint64_t count = 0;  // volumes before end of stream; 0 = endless
 };
 
 /// Parses `sim:PHANTOM[?rate=HZ&size=N&count=N&seed=N&contrast=C&realism=simple|echo&oblique=0|1]`

@@ -102,8 +102,18 @@ class Volume {
 // Files. Errors are values: a malformed file is a normal outcome of reading user input.
 
 struct VolumeIoError {
-  enum class Code { NotFound, UnknownFormat, BadHeader, UnsupportedType, BadDimensions,
-                    TruncatedData, SizeMismatch, UnsupportedOrientation, Compression, IoError };
+  enum class Code {
+    NotFound,
+    UnknownFormat,
+    BadHeader,
+    UnsupportedType,
+    BadDimensions,
+    TruncatedData,
+    SizeMismatch,
+    UnsupportedOrientation,
+    Compression,
+    IoError
+  };
   Code code = Code::IoError;
   std::string message;  // one line naming the file and the problem
 };
@@ -181,9 +191,9 @@ void smooth_gaussian(const Volume& input, float sigma_mm, Volume& out);
 /// The speckle's grain around a point, in mm: per grid axis, the lag at which the normalised
 /// autocorrelation of the raw intensities in a cube of `radius_vox` voxels around `centre_mm`
 /// falls to one half (linear between integer lags), the largest over the axes; an axis still
-/// correlated above 0.25 at three voxels holds structure, not grain, and is left out. A smoothing of this
-/// sigma averages a grain away; one of a voxel leaves a coarse grain as blobs that stop a balloon.
-/// 0 if the cube holds no variation (a noise-free image); capped at `radius_vox` voxels.
+/// correlated above 0.25 at three voxels holds structure, not grain, and is left out. A smoothing
+/// of this sigma averages a grain away; one of a voxel leaves a coarse grain as blobs that stop a
+/// balloon. 0 if the cube holds no variation (a noise-free image); capped at `radius_vox` voxels.
 float speckle_grain_mm(const Volume& input, const Vec3f& centre_mm, int radius_vox = 6);
 
 /// Central-difference gradient of a volume, in intensity units per mm (one-sided at the borders).

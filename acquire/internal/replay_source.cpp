@@ -95,8 +95,8 @@ class UsvReplaySource final : public PacedSource {
   tl::expected<void, AcquireError> open() {
     file_.open(path_, std::ios::binary);
     if (!file_) {
-      return tl::make_unexpected(AcquireError{AcquireError::Code::NotFound, errno,
-                                              path_.string() + ": cannot open", {}, 0});
+      return tl::make_unexpected(AcquireError{
+          AcquireError::Code::NotFound, errno, path_.string() + ": cannot open", {}, 0});
     }
     return {};
   }
@@ -122,8 +122,8 @@ class UsvReplaySource final : public PacedSource {
       if (got < chunk.size()) {
         if (file_.bad()) {
           finished_ = true;
-          return tl::make_unexpected(AcquireError{AcquireError::Code::IoError, errno,
-                                                  path_.string() + ": read failed", {}, 0});
+          return tl::make_unexpected(AcquireError{
+              AcquireError::Code::IoError, errno, path_.string() + ": read failed", {}, 0});
         }
         at_eof_ = true;
         decoder_.end_of_input();
@@ -172,11 +172,10 @@ class FileListReplaySource final : public PacedSource {
       }
     }
     volume->sequence = sequence;
-    volume->timestamp_ns =
-        options_.rate_hz > 0
-            ? static_cast<std::uint64_t>(std::llround(static_cast<double>(sequence) * 1e9 /
-                                                      options_.rate_hz))
-            : 0;
+    volume->timestamp_ns = options_.rate_hz > 0
+                               ? static_cast<std::uint64_t>(std::llround(
+                                     static_cast<double>(sequence) * 1e9 / options_.rate_hz))
+                               : 0;
     return volume;
   }
 
@@ -187,8 +186,8 @@ class FileListReplaySource final : public PacedSource {
     try {
       return reader_(file);
     } catch (const std::exception& e) {
-      return tl::make_unexpected(
-          AcquireError{AcquireError::Code::BadRecord, 0, std::string("cannot read: ") + e.what(), {}, 0});
+      return tl::make_unexpected(AcquireError{
+          AcquireError::Code::BadRecord, 0, std::string("cannot read: ") + e.what(), {}, 0});
     }
   }
 
@@ -236,8 +235,8 @@ tl::expected<std::unique_ptr<Source>, AcquireError> open_replay(const SourceUri&
   std::error_code ec;
   const auto status = fs::status(path, ec);
   if (ec || !fs::exists(status)) {
-    return tl::make_unexpected(AcquireError{AcquireError::Code::NotFound, ENOENT,
-                                            uri.text + ": no such file or directory", {}, 0});
+    return tl::make_unexpected(AcquireError{
+        AcquireError::Code::NotFound, ENOENT, uri.text + ": no such file or directory", {}, 0});
   }
   if (fs::is_directory(status) || is_volume_file(path, files)) {
     std::vector<fs::path> list;

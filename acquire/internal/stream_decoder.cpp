@@ -22,7 +22,7 @@ AcquireError lost(const SequenceTracker::Gap& gap) {
 
 AcquireError to_error(const DroppedRecord& dropped) {
   const auto code = dropped.reason == DropReason::Truncated ? AcquireError::Code::Incomplete
-                                                             : AcquireError::Code::BadRecord;
+                                                            : AcquireError::Code::BadRecord;
   return AcquireError{code, 0, std::string(to_string(dropped.reason)) + ": " + dropped.detail,
                       dropped.sequence, 0};
 }

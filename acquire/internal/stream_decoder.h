@@ -7,7 +7,6 @@
 #include <cstdint>
 #include <deque>
 #include <optional>
-
 #include <tl/expected.hpp>
 
 #include "acquire/acquire.h"

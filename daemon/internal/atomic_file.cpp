@@ -38,9 +38,8 @@ fs::path parent_or_dot(const fs::path& p) {
 }  // namespace
 
 fs::path temporary_name(const fs::path& target) {
-  const std::string name =
-      "." + target.stem().string() + ".tmp-" + std::to_string(::getpid()) +
-      target.extension().string();
+  const std::string name = "." + target.stem().string() + ".tmp-" + std::to_string(::getpid()) +
+                           target.extension().string();
   return parent_or_dot(target) / name;
 }
 
@@ -83,17 +82,20 @@ void write_file_atomically(const fs::path& target, std::string_view bytes) {
 }
 
 void publish_copy_atomically(const fs::path& source, const fs::path& target) {
-  write_atomically_impl(target, [&](const fs::path& tmp) {
-    std::error_code ec;
-    fs::create_hard_link(source, tmp, ec);
-    if (ec) {
-      fs::copy_file(source, tmp, fs::copy_options::overwrite_existing, ec);
-      if (ec) {
-        throw std::runtime_error("cannot copy " + source.string() + " to " + tmp.string() +
-                                 ": " + ec.message());
-      }
-    }
-  }, false);
+  write_atomically_impl(
+      target,
+      [&](const fs::path& tmp) {
+        std::error_code ec;
+        fs::create_hard_link(source, tmp, ec);
+        if (ec) {
+          fs::copy_file(source, tmp, fs::copy_options::overwrite_existing, ec);
+          if (ec) {
+            throw std::runtime_error("cannot copy " + source.string() + " to " + tmp.string() +
+                                     ": " + ec.message());
+          }
+        }
+      },
+      false);
 }
 
 int remove_stale_temporaries(const fs::path& dir) {

@@ -1,15 +1,14 @@
 #include "daemon/internal/http_status.h"
 
 #include <arpa/inet.h>
+#include <httplib.h>
 
 #include <charconv>
 #include <cmath>
 #include <fstream>
+#include <nlohmann/json.hpp>
 #include <sstream>
 #include <stdexcept>
-
-#include <httplib.h>
-#include <nlohmann/json.hpp>
 
 namespace sonomesh::daemon {
 
@@ -35,7 +34,8 @@ std::optional<HttpAddress> parse_http_address(const std::string& text) {
   }
   if (address.host.empty() || port_text.empty()) return std::nullopt;
   int port = -1;
-  const auto [end, ec] = std::from_chars(port_text.data(), port_text.data() + port_text.size(), port);
+  const auto [end, ec] =
+      std::from_chars(port_text.data(), port_text.data() + port_text.size(), port);
   if (ec != std::errc() || end != port_text.data() + port_text.size() || port < 0 || port > 65535) {
     return std::nullopt;
   }

@@ -71,6 +71,8 @@ class SliceSink : public OutputSink {
 
 }  // namespace
 
-std::shared_ptr<OutputSink> LiveExtras::slice_sink() { return std::make_shared<SliceSink>(slices_); }
+std::shared_ptr<OutputSink> LiveExtras::slice_sink() {
+  return std::make_shared<SliceSink>(slices_);
+}
 
 }  // namespace sonomesh::daemon

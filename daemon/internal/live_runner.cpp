@@ -59,8 +59,8 @@ LiveRunner::LiveRunner(RunConfig config, std::unique_ptr<acquire::Source> source
   } else {
     stats_.set_seed(std::nullopt, to_string(SeedOrigin::Centre));
   }
-  acquisition_ =
-      std::make_unique<Acquisition>(context(), std::move(source), std::move(factory), *queue_, live_);
+  acquisition_ = std::make_unique<Acquisition>(context(), std::move(source), std::move(factory),
+                                               *queue_, live_);
   worker_ =
       std::make_unique<Worker>(context(), *queue_, *results_, phantom_seed_mm, abort_.get_token());
   writer_ = std::make_unique<Writer>(context(), *results_);

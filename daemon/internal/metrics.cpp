@@ -22,8 +22,7 @@ constexpr float kFar = 1e20f;
 // sweeps, so two workers on the CI's two cores roughly halve them.
 template <typename Body>
 void parallel_lines(std::size_t n, Body body) {
-  const std::size_t workers =
-      std::clamp<std::size_t>(std::thread::hardware_concurrency(), 1, 8);
+  const std::size_t workers = std::clamp<std::size_t>(std::thread::hardware_concurrency(), 1, 8);
   if (workers == 1 || n < 64) {
     body(std::size_t{0}, n);
     return;
@@ -73,10 +72,10 @@ void edt_1d(const float* f, float* out, int n, float s, int* v, float* z) {
 // Applies edt_1d along `axis` of a dense float grid in place.
 void transform_axis(std::vector<float>& grid, const Vec3i& dims, int axis, float s) {
   const int n = dims[axis];
-  const std::size_t stride = axis == 0 ? 1
+  const std::size_t stride = axis == 0   ? 1
                              : axis == 1 ? static_cast<std::size_t>(dims.x())
                                          : static_cast<std::size_t>(dims.x()) * dims.y();
-  const int a = axis == 0 ? 1 : 0;          // the two other axes enumerate the lines
+  const int a = axis == 0 ? 1 : 0;  // the two other axes enumerate the lines
   const int b = axis == 2 ? 1 : 2;
   const std::size_t lines = static_cast<std::size_t>(dims[a]) * dims[b];
   parallel_lines(lines, [&](std::size_t first, std::size_t last) {
@@ -96,8 +95,7 @@ void transform_axis(std::vector<float>& grid, const Vec3i& dims, int axis, float
 }
 
 void require_same_grid(const Volume& a, const Volume& b) {
-  if (a.dims() != b.dims())
-    throw std::invalid_argument("label volumes have different dimensions");
+  if (a.dims() != b.dims()) throw std::invalid_argument("label volumes have different dimensions");
 }
 
 // Label volumes are UInt8 (rasterize_labels, the simulator's truth, label files); direct access
@@ -130,8 +128,8 @@ std::vector<bool> boundary_of(const Volume& labels) {
     for (int j = 0; j < d.y(); ++j)
       for (int i = 0; i < d.x(); ++i) {
         if (!inside(i, j, k)) continue;
-        const bool border = i == 0 || j == 0 || k == 0 || i == d.x() - 1 || j == d.y() - 1 ||
-                            k == d.z() - 1;
+        const bool border =
+            i == 0 || j == 0 || k == 0 || i == d.x() - 1 || j == d.y() - 1 || k == d.z() - 1;
         if (border || !inside(i - 1, j, k) || !inside(i + 1, j, k) || !inside(i, j - 1, k) ||
             !inside(i, j + 1, k) || !inside(i, j, k - 1) || !inside(i, j, k + 1))
           boundary[labels.linear_index(i, j, k)] = true;
@@ -241,8 +239,8 @@ SurfaceDistances surface_distances(const Volume& a, const Volume& b) {
   for (double value : pooled) sum += value;
   result.mean_vox = sum / static_cast<double>(pooled.size());
   std::sort(pooled.begin(), pooled.end());
-  const std::size_t p95 = static_cast<std::size_t>(
-      std::ceil(0.95 * static_cast<double>(pooled.size()))) - 1;
+  const std::size_t p95 =
+      static_cast<std::size_t>(std::ceil(0.95 * static_cast<double>(pooled.size()))) - 1;
   result.hd95_vox = pooled[std::min(p95, pooled.size() - 1)];
   result.max_vox = pooled.back();
   result.valid = true;

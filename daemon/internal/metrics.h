@@ -16,9 +16,9 @@ std::vector<float> squared_distance_transform_mm2(const std::vector<bool>& featu
                                                   const volume::Vec3i& dims,
                                                   const volume::Vec3f& spacing_mm);
 
-/// Voxel centre deepest inside the UInt8 label volume (nonzero = inside): the maximum of the distance to
-/// the nearest outside voxel (voxels beyond the border count as outside). Returns false if the
-/// labels are empty.
+/// Voxel centre deepest inside the UInt8 label volume (nonzero = inside): the maximum of the
+/// distance to the nearest outside voxel (voxels beyond the border count as outside). Returns false
+/// if the labels are empty.
 bool deepest_interior_index(const volume::Volume& labels, volume::Vec3i& ijk, float& depth_mm);
 
 /// Label volumes here are UInt8; anything else throws std::invalid_argument.

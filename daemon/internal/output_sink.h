@@ -23,13 +23,13 @@ struct ProcessedVolume {
   std::uint64_t sequence = 0;
   std::uint64_t epoch = 0;
   std::chrono::steady_clock::time_point received;  // when the acquisition got the volume
-  segment::Mesh mesh;                    // the final surface, world frame (LPS mm)
+  segment::Mesh mesh;                              // the final surface, world frame (LPS mm)
   std::optional<volume::Volume> labels;  // UInt8 on the input's grid and direction, inside = 1
   /// The input volume (shared, not copied: the live page's slices are cut from it) and the seed
   /// used, in the grid frame the pipeline ran in (volume::Volume::world_to_grid_mm).
   std::shared_ptr<const volume::Volume> input;
   volume::Vec3f seed_grid_mm = volume::Vec3f::Zero();
-  nlohmann::json report;                           // the per-volume report (report_json)
+  nlohmann::json report;  // the per-volume report (report_json)
   StageTimings timings;
   /// "e<epoch>-<sequence>", or "<sequence>" in epoch 0: the outputs' file stem.
   std::string stem() const;

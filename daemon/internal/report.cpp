@@ -60,12 +60,10 @@ nlohmann::json report_json(const PipelineResult& result, const std::string& inpu
   // JSON has no infinity: the narrowest feature only when one was thin enough to matter.
   if (std::isfinite(result.grid_feature_mm))
     report["reconstruction"]["feature_mm"] = result.grid_feature_mm;
-  report["mesh"] = {{"vertices", result.mesh.vertices.size()},
-                    {"faces", result.mesh.triangles.size()},
-                    {"components", result.topology.components},
-                    {"genus", result.topology.genus},
-                    {"watertight", result.topology.watertight},
-                    {"volume_ml", result.enclosed_volume_ml}};
+  report["mesh"] = {
+      {"vertices", result.mesh.vertices.size()},  {"faces", result.mesh.triangles.size()},
+      {"components", result.topology.components}, {"genus", result.topology.genus},
+      {"watertight", result.topology.watertight}, {"volume_ml", result.enclosed_volume_ml}};
   if (result.deepest_interior_mm)
     report["deepest_interior_mm"] = vec_json(*result.deepest_interior_mm);
   return report;

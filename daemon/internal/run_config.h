@@ -24,27 +24,27 @@ inline constexpr const char* kDefaultHttpAddress = "127.0.0.1:8787";
 
 struct RunConfig {
   // [daemon]
-  std::string source;                        // SOURCE URI (required)
-  std::filesystem::path out;                 // output directory (required)
+  std::string source;                           // SOURCE URI (required)
+  std::filesystem::path out;                    // output directory (required)
   std::optional<std::array<float, 3>> seed_mm;  // configured seed; unset: phantom / centre
-  std::size_t queue_capacity = 2;            // volumes waiting for the worker
-  std::string log_level = "info";            // trace, debug, info, warn, error
+  std::size_t queue_capacity = 2;               // volumes waiting for the worker
+  std::string log_level = "info";               // trace, debug, info, warn, error
   // [http]
   std::string http_address = kDefaultHttpAddress;  // "off" disables the server
-  bool http_explicit = false;                // set by --http / the file: a bind failure is fatal
-  bool allow_remote_http = false;            // a non-loopback address needs this
+  bool http_explicit = false;      // set by --http / the file: a bind failure is fatal
+  bool allow_remote_http = false;  // a non-loopback address needs this
   // [source]
-  double rate_hz = 0;                        // replay pacing (0 = recorded timing / unpaced)
+  double rate_hz = 0;  // replay pacing (0 = recorded timing / unpaced)
   std::array<int, 3> max_dims{1024, 1024, 1024};
   std::uint64_t max_payload_bytes = 1ull << 30;
-  std::string record_path;                   // tee good volumes to this .usv
+  std::string record_path;  // tee good volumes to this .usv
   int connect_timeout_ms = 1000;
   // [limits]
-  std::uint64_t max_lost_lines = 100000;     // a bigger sequence jump is an event, not N lines
-  std::uint64_t keep_meshes = 0;             // keep the newest N meshes/reports (0 = all)
+  std::uint64_t max_lost_lines = 100000;  // a bigger sequence jump is an event, not N lines
+  std::uint64_t keep_meshes = 0;          // keep the newest N meshes/reports (0 = all)
   // [outputs]
-  std::string igtl_listen;                   // OpenIGTLink server ADDR:PORT ("" = none)
-  bool igtl_any_address = false;             // a non-loopback igtl_listen needs this
+  std::string igtl_listen;        // OpenIGTLink server ADDR:PORT ("" = none)
+  bool igtl_any_address = false;  // a non-loopback igtl_listen needs this
   // [pipeline]
   PipelineConfig pipeline;
 };

@@ -52,10 +52,14 @@ double quantile_of(std::vector<double> values, double q) {
 
 const char* to_string(SourceState state) {
   switch (state) {
-    case SourceState::Connecting: return "connecting";
-    case SourceState::Connected: return "connected";
-    case SourceState::Reconnecting: return "reconnecting";
-    case SourceState::Ended: return "ended";
+    case SourceState::Connecting:
+      return "connecting";
+    case SourceState::Connected:
+      return "connected";
+    case SourceState::Reconnecting:
+      return "reconnecting";
+    case SourceState::Ended:
+      return "ended";
   }
   return "unknown";
 }
@@ -189,11 +193,13 @@ nlohmann::json RunStats::status_json() const {
     latency["max"] = *std::max_element(v.begin(), v.end());
   }
   j["latency_ms"] = latency;
-  j["source"] = {{"uri", source_}, {"live", live_}, {"state", to_string(source_state_)},
+  j["source"] = {{"uri", source_},
+                 {"live", live_},
+                 {"state", to_string(source_state_)},
                  {"outages", outages_}};
-  j["last_error"] = last_error_.empty() ? nlohmann::json(nullptr)
-                                        : nlohmann::json{{"message", last_error_},
-                                                         {"time", last_error_time_}};
+  j["last_error"] = last_error_.empty()
+                        ? nlohmann::json(nullptr)
+                        : nlohmann::json{{"message", last_error_}, {"time", last_error_time_}};
   j["queue"] = {{"depth", queue_depth_}, {"capacity", queue_capacity_}};
   j["seed"] = {{"mm", seed_mm_ ? nlohmann::json(*seed_mm_) : nlohmann::json(nullptr)},
                {"origin", seed_origin_}};
@@ -205,8 +211,8 @@ nlohmann::json RunStats::status_json() const {
       j["last_processed"]["quality_reasons"] = last_quality_reasons_;
     }
   }
-  j["quality"] = {{"ok", quality_ok_}, {"suspect", quality_suspect_},
-                  {"suspect_reasons", suspect_reasons_}};
+  j["quality"] = {
+      {"ok", quality_ok_}, {"suspect", quality_suspect_}, {"suspect_reasons", suspect_reasons_}};
   j["starts"] = {{"warm", warm_starts_}, {"cold", cold_starts_}};
   if (igtl_enabled_) {
     j["igtl"] = {{"clients", igtl_clients_}, {"sent", igtl_sent_}, {"dropped", igtl_dropped_}};
@@ -254,7 +260,8 @@ void RunStats::prom_counts(std::ostream& out) const {
            "Suspect results by reason (one may have several).");
   for (const auto& [reason, n] : suspect_reasons_)
     out << "sonomesh_suspect_reasons_total{reason=\"" << prom_label(reason) << "\"} " << n << "\n";
-  describe(out, "sonomesh_starts_total", "counter", "Processed volumes by how the balloon started.");
+  describe(out, "sonomesh_starts_total", "counter",
+           "Processed volumes by how the balloon started.");
   out << "sonomesh_starts_total{start=\"warm\"} " << warm_starts_ << "\n"
       << "sonomesh_starts_total{start=\"cold\"} " << cold_starts_ << "\n";
 }

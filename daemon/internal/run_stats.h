@@ -9,11 +9,10 @@
 #include <iosfwd>
 #include <map>
 #include <mutex>
+#include <nlohmann/json.hpp>
 #include <optional>
 #include <string>
 #include <vector>
-
-#include <nlohmann/json.hpp>
 
 #include "daemon/internal/journal.h"
 
@@ -25,8 +24,8 @@ const char* to_string(SourceState state);
 class RunStats {
  public:
   /// Upper bounds (seconds) of the latency histogram buckets (+Inf is implicit).
-  static constexpr std::array<double, 10> kLatencyBuckets{0.025, 0.05, 0.075, 0.1,  0.15,
-                                                          0.25,  0.5,  1.0,   2.5,  5.0};
+  static constexpr std::array<double, 10> kLatencyBuckets{0.025, 0.05, 0.075, 0.1, 0.15,
+                                                          0.25,  0.5,  1.0,   2.5, 5.0};
   /// Number of recent latencies the quantiles are computed over.
   static constexpr std::size_t kLatencyWindow = 1024;
 

@@ -56,8 +56,8 @@ float otsu_threshold(const Volume& input) {
     if (weight_dark == 0.0 || weight_bright == 0.0) continue;
     const double mean_dark = sum_dark / weight_dark;
     const double mean_bright = (sum_all - sum_dark) / weight_bright;
-    const double variance = weight_dark * weight_bright * (mean_dark - mean_bright) *
-                            (mean_dark - mean_bright);
+    const double variance =
+        weight_dark * weight_bright * (mean_dark - mean_bright) * (mean_dark - mean_bright);
     if (variance > best_variance) {
       best_variance = variance;
       best_bin = b;
@@ -68,7 +68,8 @@ float otsu_threshold(const Volume& input) {
 
 }  // namespace
 
-std::optional<std::string> check_seed(const Volume& input, const Vec3f& seed_mm, TargetPolarity target) {
+std::optional<std::string> check_seed(const Volume& input, const Vec3f& seed_mm,
+                                      TargetPolarity target) {
   if (input.empty()) return "the volume is empty";
   if (!seed_mm.allFinite()) return "the seed is not a finite point";
   if (!input.contains_mm(seed_mm))

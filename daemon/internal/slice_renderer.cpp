@@ -179,13 +179,13 @@ nlohmann::json SliceRenderer::info() const {
   }
   if (!frame) return nullptr;
   auto vec = [](const auto& v) { return nlohmann::json{v[0], v[1], v[2]}; };
-  nlohmann::json j = {{"sequence", frame->sequence},
-                      {"dims", vec(frame->dims)},
-                      {"spacing_mm", vec(frame->spacing_mm)},
-                      {"origin_mm", vec(frame->origin_mm)},
-                      {"direction", std::vector<float>(frame->direction.data(),
-                                                       frame->direction.data() + 9)},
-                      {"seed_index", vec(frame->seed_index)}};
+  nlohmann::json j = {
+      {"sequence", frame->sequence},
+      {"dims", vec(frame->dims)},
+      {"spacing_mm", vec(frame->spacing_mm)},
+      {"origin_mm", vec(frame->origin_mm)},
+      {"direction", std::vector<float>(frame->direction.data(), frame->direction.data() + 9)},
+      {"seed_index", vec(frame->seed_index)}};
   for (SliceAxis axis : {SliceAxis::Axial, SliceAxis::Coronal, SliceAxis::Sagittal}) {
     const auto [u, v, n] = kAxes[axis_number(axis)];
     j["slices"][to_string(axis)] = {

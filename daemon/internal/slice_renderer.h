@@ -52,7 +52,8 @@ class SliceRenderer {
   /// The PNG of one slice of the latest result, or nothing before the first one.
   std::optional<std::string> png(SliceAxis axis);
   /// What the page needs to turn a click into a (world-frame) seed: sequence, dims, spacing,
-  /// origin, direction (column-major: column c is index axis c in LPS), the seed index, and per slice its pixel size and which index axes it shows. Null before a result.
+  /// origin, direction (column-major: column c is index axis c in LPS), the seed index, and per
+  /// slice its pixel size and which index axes it shows. Null before a result.
   nlohmann::json info() const;
 
  private:

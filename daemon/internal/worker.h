@@ -68,7 +68,7 @@ class Worker {
   PipelineBuffers buffers_;  // smoothing buffers, reused from volume to volume
   SeedPolicy seeds_;         // the worker's own
   std::optional<Previous> previous_;
-  bool seed_overridden_ = false;  // the last pick_seed used an override
+  bool seed_overridden_ = false;           // the last pick_seed used an override
   std::optional<Vec3f> last_centroid_mm_;  // of the last result (its motion, for the next)
   double last_volume_ml_ = 0.0;
   int since_refused_ = 1 << 30;  // volumes since the pipeline last refused a warm start

@@ -10,7 +10,8 @@ namespace {
 
 // 1D lower envelope of parabolas (Felzenszwalb & Huttenlocher 2012) on samples spaced `h` mm,
 // plus the virtual background just outside both ends of the line. f and d have length n.
-void envelope_1d(const float* f, float* d, int n, float h, std::vector<int>& v, std::vector<float>& z) {
+void envelope_1d(const float* f, float* d, int n, float h, std::vector<int>& v,
+                 std::vector<float>& z) {
   v.resize(n);
   z.resize(n + 1);
   const float h2 = h * h;
@@ -56,7 +57,8 @@ std::vector<float> squared_distance_inside_mm2(const volume::Volume& labels) {
   parallel_chunks(0, nz, [&](int k0, int k1) {
     for (int k = k0; k < k1; ++k)
       for (int j = 0; j < ny; ++j) {
-        const std::size_t row = static_cast<std::size_t>(k) * slice + static_cast<std::size_t>(j) * nx;
+        const std::size_t row =
+            static_cast<std::size_t>(k) * slice + static_cast<std::size_t>(j) * nx;
         int last = -1;  // virtual background left of the row
         for (int i = 0; i < nx; ++i) {
           if (lab[row + i] == 0) last = i;

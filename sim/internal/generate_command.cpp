@@ -72,7 +72,8 @@ void run_generate(GenerateArgs& args) {
   }
   spec.spacing_mm = parse_vec3(args.spacing, "--spacing", true);
   spec.axis = parse_vec3(args.axis, "--axis", false);
-  if (!args.needle_axis.empty()) spec.needle_axis = parse_vec3(args.needle_axis, "--needle-axis", false);
+  if (!args.needle_axis.empty())
+    spec.needle_axis = parse_vec3(args.needle_axis, "--needle-axis", false);
   const std::filesystem::path out(args.out), truth_path(args.truth);
   for (const auto& p : {out, truth_path})
     if (!is_volume_path(p))
@@ -82,7 +83,8 @@ void run_generate(GenerateArgs& args) {
 
   const Phantom phantom = make_phantom(spec);
   if (auto err = volume::write_volume(phantom.image, out)) throw std::runtime_error(err->message);
-  if (auto err = volume::write_volume(phantom.truth, truth_path)) throw std::runtime_error(err->message);
+  if (auto err = volume::write_volume(phantom.truth, truth_path))
+    throw std::runtime_error(err->message);
 
   std::size_t target_voxels = 0;
   for (auto v : phantom.truth.u8()) target_voxels += v;
@@ -128,22 +130,27 @@ void run_generate(GenerateArgs& args) {
 
 void add_generate_command(CLI::App& app, int& exit_code) {
   auto args = std::make_shared<GenerateArgs>();
-  CLI::App* cmd = app.add_subcommand("generate", "Write one phantom volume, its truth labels and VOL.json");
+  CLI::App* cmd =
+      app.add_subcommand("generate", "Write one phantom volume, its truth labels and VOL.json");
   cmd->add_option("--phantom", args->spec.phantom, "Phantom")
       ->required()
       ->check(CLI::IsMember(phantom_names()));
   cmd->add_option("--size", args->spec.size_vox, "Edge of the cubic volume in voxels")
       ->capture_default_str();
-  cmd->add_option("--seed", args->spec.seed, "Random seed (same seed, same bytes)")->capture_default_str();
-  cmd->add_option("--spacing", args->spacing, "Voxel spacing in mm: X or X,Y,Z")->capture_default_str();
+  cmd->add_option("--seed", args->spec.seed, "Random seed (same seed, same bytes)")
+      ->capture_default_str();
+  cmd->add_option("--spacing", args->spacing, "Voxel spacing in mm: X or X,Y,Z")
+      ->capture_default_str();
   cmd->add_option("--contrast", args->spec.contrast, "1 - target/tissue brightness, 0..1")
       ->capture_default_str();
-  auto* speckle = cmd->add_option("--speckle", args->spec.speckle, "Speckle strength, 0..1 (echo: 1)")
-                      ->capture_default_str();
+  auto* speckle =
+      cmd->add_option("--speckle", args->spec.speckle, "Speckle strength, 0..1 (echo: 1)")
+          ->capture_default_str();
   auto* attenuation = cmd->add_option("--attenuation", args->spec.attenuation_db_per_cm,
                                       "Attenuation, dB/cm round trip (echo: 3)")
                           ->capture_default_str();
-  cmd->add_option("--realism", args->realism, "Image model: simple, or echo (a probe's sector view)")
+  cmd->add_option("--realism", args->realism,
+                  "Image model: simple, or echo (a probe's sector view)")
       ->check(CLI::IsMember({"simple", "echo"}))
       ->capture_default_str();
   cmd->add_option("--speckle-mm", args->spec.speckle_mm, "Echo: speckle grain (lateral sigma), mm")

@@ -14,7 +14,8 @@ template <class Body>
 void parallel_chunks(int begin, int end, const Body& body) {
   const int n = end - begin;
   if (n <= 0) return;
-  const int threads = std::clamp(static_cast<int>(std::thread::hardware_concurrency()), 1, std::min(n, 8));
+  const int threads =
+      std::clamp(static_cast<int>(std::thread::hardware_concurrency()), 1, std::min(n, 8));
   if (threads == 1) {
     body(begin, end);
     return;

@@ -70,7 +70,8 @@ tl::expected<PhantomSourceOptions, AcquireError> parse_sim_uri(const std::string
   }
   for (const auto& [key, value] : parsed->query) {
     if (key == "realism") {
-      if (value != "simple" && value != "echo") return invalid(uri, "realism must be simple or echo");
+      if (value != "simple" && value != "echo")
+        return invalid(uri, "realism must be simple or echo");
       if (value == "echo") options.spec = with_echo_realism(options.spec);
       continue;
     }
@@ -109,30 +110,33 @@ PhantomSource::PhantomSource(PhantomSourceOptions options)
 
 PhantomSource::~PhantomSource() = default;
 
-tl::expected<acquire::RawVolume, AcquireError> PhantomSource::next(std::chrono::milliseconds timeout) {
+tl::expected<acquire::RawVolume, AcquireError> PhantomSource::next(
+    std::chrono::milliseconds timeout) {
   const auto deadline = Clock::now() + timeout;
   std::uint64_t sequence = 0;
   {
     std::unique_lock lock(state_->mutex);
     if (options_.count > 0 && state_->next_sequence >= options_.count) {
-      return tl::make_unexpected(AcquireError{AcquireError::Code::EndOfStream, 0,
-                                              "phantom stream ended after " +
-                                                  std::to_string(options_.count) + " volumes",
-                                              state_->next_sequence, 0});
+      return tl::make_unexpected(
+          AcquireError{AcquireError::Code::EndOfStream, 0,
+                       "phantom stream ended after " + std::to_string(options_.count) + " volumes",
+                       state_->next_sequence, 0});
     }
     sequence = state_->next_sequence;
     if (sequence == 0) state_->start = Clock::now();
-    const auto due = state_->start + std::chrono::nanoseconds(static_cast<std::int64_t>(
-                                         std::llround(static_cast<double>(sequence) * 1e9 /
-                                                      options_.rate_hz)));
+    const auto due =
+        state_->start + std::chrono::nanoseconds(static_cast<std::int64_t>(
+                            std::llround(static_cast<double>(sequence) * 1e9 / options_.rate_hz)));
     const auto until = std::min(due, deadline);
     state_->wake.wait_until(lock, until, [&] { return state_->interrupted; });
     if (state_->interrupted) {
       state_->interrupted = false;
-      return tl::make_unexpected(AcquireError{AcquireError::Code::Timeout, 0, "interrupted", {}, 0});
+      return tl::make_unexpected(
+          AcquireError{AcquireError::Code::Timeout, 0, "interrupted", {}, 0});
     }
     if (Clock::now() < due) {
-      return tl::make_unexpected(AcquireError{AcquireError::Code::Timeout, 0, "no volume due", {}, 0});
+      return tl::make_unexpected(
+          AcquireError{AcquireError::Code::Timeout, 0, "no volume due", {}, 0});
     }
     ++state_->next_sequence;
   }
@@ -141,15 +145,16 @@ tl::expected<acquire::RawVolume, AcquireError> PhantomSource::next(std::chrono::
     v.received = Clock::now();
     return v;
   } catch (const std::exception& e) {
-    return tl::make_unexpected(AcquireError{AcquireError::Code::BadRecord, 0, e.what(), sequence, 0});
+    return tl::make_unexpected(
+        AcquireError{AcquireError::Code::BadRecord, 0, e.what(), sequence, 0});
   }
 }
 
 std::string PhantomSource::describe() const {
   char rate[32];
   std::snprintf(rate, sizeof rate, "%g", options_.rate_hz);
-  return "sim:" + options_.spec.phantom + "?rate=" + rate + "&size=" +
-         std::to_string(options_.spec.size_vox);
+  return "sim:" + options_.spec.phantom + "?rate=" + rate +
+         "&size=" + std::to_string(options_.spec.size_vox);
 }
 
 void PhantomSource::interrupt() {

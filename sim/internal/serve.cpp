@@ -1,5 +1,4 @@
 // probe-sim serve: a probe on a socket - phantom volumes or a .usv replay, with fault injection.
-#include <CLI/CLI.hpp>
 #include <netdb.h>
 #include <netinet/in.h>
 #include <poll.h>
@@ -8,6 +7,7 @@
 #include <sys/un.h>
 #include <unistd.h>
 
+#include <CLI/CLI.hpp>
 #include <cerrno>
 #include <chrono>
 #include <cmath>
@@ -42,12 +42,12 @@ struct ServeArgs {
   int size = 64;
   std::uint64_t count = 0;
   std::uint32_t seed = 1;
-  std::string igtl;          // HOST:PORT: an OpenIGTLink server instead of the probe stream
+  std::string igtl;  // HOST:PORT: an OpenIGTLink server instead of the probe stream
   int igtl_header = 1;
   std::string igtl_device = "Image_Reference";
   bool oblique = false;
-  std::string realism;       // empty: as the --phantom URI says (default simple)
-  float contrast = -1.0f;    // < 0: as the --phantom URI says
+  std::string realism;     // empty: as the --phantom URI says (default simple)
+  float contrast = -1.0f;  // < 0: as the --phantom URI says
   std::uint64_t corrupt_every = 0;
   std::uint64_t drop_every = 0;
   std::uint64_t truncate_every = 0;
@@ -70,7 +70,8 @@ class Listener {
     } else if (spec.rfind("tcp:", 0) == 0) {
       const std::string rest = spec.substr(4);
       const auto colon = rest.rfind(':');
-      if (colon == std::string::npos) throw std::invalid_argument("--listen " + spec + ": expected tcp:HOST:PORT");
+      if (colon == std::string::npos)
+        throw std::invalid_argument("--listen " + spec + ": expected tcp:HOST:PORT");
       host_ = rest.substr(0, colon);
       port_ = rest.substr(colon + 1);
     } else {
@@ -104,7 +105,8 @@ class Listener {
       ::freeaddrinfo(list);
       if (rc != 0) throw std::runtime_error("bind " + spec_ + ": " + std::strerror(errno));
     }
-    if (::listen(fd_, 1) != 0) throw std::runtime_error("listen " + spec_ + ": " + std::strerror(errno));
+    if (::listen(fd_, 1) != 0)
+      throw std::runtime_error("listen " + spec_ + ": " + std::strerror(errno));
     log_line("listening on " + spec_);
   }
   void stop() {
@@ -116,7 +118,8 @@ class Listener {
     for (;;) {
       const int c = ::accept4(fd_, nullptr, nullptr, SOCK_CLOEXEC);
       if (c >= 0) return c;
-      if (errno != EINTR && errno != ECONNABORTED) throw std::runtime_error(std::string("accept: ") + std::strerror(errno));
+      if (errno != EINTR && errno != ECONNABORTED)
+        throw std::runtime_error(std::string("accept: ") + std::strerror(errno));
     }
   }
 
@@ -187,9 +190,9 @@ class VolumeFeed {
 };
 
 std::uint64_t now_ns() {
-  return static_cast<std::uint64_t>(std::chrono::duration_cast<std::chrono::nanoseconds>(
-                                        Clock::now().time_since_epoch())
-                                        .count());
+  return static_cast<std::uint64_t>(
+      std::chrono::duration_cast<std::chrono::nanoseconds>(Clock::now().time_since_epoch())
+          .count());
 }
 
 bool due(std::uint64_t n, std::uint64_t every) { return every > 0 && n % every == 0; }
@@ -377,28 +380,37 @@ int run_serve(const ServeArgs& args) {
 
 void add_serve_command(CLI::App& app, int& exit_code) {
   auto args = std::make_shared<ServeArgs>();
-  CLI::App* cmd = app.add_subcommand("serve", "stream phantom volumes or a .usv recording over a socket");
+  CLI::App* cmd =
+      app.add_subcommand("serve", "stream phantom volumes or a .usv recording over a socket");
   auto* phantom = cmd->add_option("--phantom", args->phantom, "phantom name (sphere, torus, ...)");
   auto* replay = cmd->add_option("--replay", args->replay, "a .usv recording to stream");
   phantom->excludes(replay);
-  auto* listen = cmd->add_option("--listen", args->listen, "unix:PATH or tcp:HOST:PORT (probe stream)");
-  cmd->add_option("--igtl", args->igtl, "HOST:PORT: act as a PlusServer, OpenIGTLink IMAGE messages")
+  auto* listen =
+      cmd->add_option("--listen", args->listen, "unix:PATH or tcp:HOST:PORT (probe stream)");
+  cmd->add_option("--igtl", args->igtl,
+                  "HOST:PORT: act as a PlusServer, OpenIGTLink IMAGE messages")
       ->excludes(listen);
-  cmd->add_option("--igtl-header", args->igtl_header, "OpenIGTLink header version, 1 or 2 (MESSAGE_ID)")
+  cmd->add_option("--igtl-header", args->igtl_header,
+                  "OpenIGTLink header version, 1 or 2 (MESSAGE_ID)")
       ->check(CLI::IsMember({1, 2}));
   cmd->add_option("--igtl-device", args->igtl_device, "IMAGE device name");
-  cmd->add_flag("--oblique", args->oblique, "the grid lies obliquely in the world (sim::oblique_direction)");
+  cmd->add_flag("--oblique", args->oblique,
+                "the grid lies obliquely in the world (sim::oblique_direction)");
   cmd->add_option("--rate", args->rate_hz, "volumes per second (replay: 0 = recorded timestamps)");
   cmd->add_option("--size", args->size, "phantom edge in voxels");
   cmd->add_option("--count", args->count, "volumes before end of stream (0 = endless)");
   cmd->add_option("--seed", args->seed, "phantom random seed");
   cmd->add_option("--realism", args->realism, "image model: simple or echo (a probe's sector view)")
       ->check(CLI::IsMember({"simple", "echo"}));
-  cmd->add_option("--contrast", args->contrast, "phantom contrast, 0..1")->check(CLI::Range(0.0, 1.0));
-  cmd->add_option("--corrupt-every", args->corrupt_every, "flip a bit in every Nth record (header or payload)");
+  cmd->add_option("--contrast", args->contrast, "phantom contrast, 0..1")
+      ->check(CLI::Range(0.0, 1.0));
+  cmd->add_option("--corrupt-every", args->corrupt_every,
+                  "flip a bit in every Nth record (header or payload)");
   cmd->add_option("--drop-every", args->drop_every, "skip every Nth record (a sequence gap)");
-  cmd->add_option("--truncate-every", args->truncate_every, "send half of every Nth record, then close");
-  cmd->add_option("--disconnect-every", args->disconnect_every, "after every Nth record close and stop listening");
+  cmd->add_option("--truncate-every", args->truncate_every,
+                  "send half of every Nth record, then close");
+  cmd->add_option("--disconnect-every", args->disconnect_every,
+                  "after every Nth record close and stop listening");
   cmd->add_option("--down-ms", args->down_ms, "how long a --disconnect-every outage lasts");
   cmd->add_option("--heartbeat-ms", args->heartbeat_ms, "heartbeat interval when idle");
   cmd->add_option("--fault-seed", args->fault_seed, "seed of the fault injection choices");

@@ -1,10 +1,11 @@
 // sim::PhantomSource: the daemon's sim: source - URI parsing, pacing, sequences, motion.
+#include "sim/phantom_source.h"
+
 #include <gtest/gtest.h>
 
 #include <thread>
 
 #include "acquire/protocol.h"
-#include "sim/phantom_source.h"
 
 namespace sonomesh::sim {
 namespace {

@@ -189,29 +189,45 @@ INSTANTIATE_TEST_SUITE_P(
     Classes, Corrupted,
     ::testing::Values(
         Corruption{"bad magic", DropReason::Garbage, false,
-                   [](auto r) { r[1] ^= 0xff; return r; }},
+                   [](auto r) {
+                     r[1] ^= 0xff;
+                     return r;
+                   }},
         Corruption{"header crc", DropReason::HeaderCrc, false,
-                   [](auto r) { r[17] ^= 0x10; return r; }},
+                   [](auto r) {
+                     r[17] ^= 0x10;
+                     return r;
+                   }},
         Corruption{"payload crc", DropReason::PayloadCrc, true,
-                   [](auto r) { r[64 + 1000] ^= 0x01; return r; }},
+                   [](auto r) {
+                     r[64 + 1000] ^= 0x01;
+                     return r;
+                   }},
         Corruption{"payload crc field", DropReason::PayloadCrc, true,
-                   [](auto r) { r.back() ^= 0x80; return r; }},
+                   [](auto r) {
+                     r.back() ^= 0x80;
+                     return r;
+                   }},
         Corruption{"truncated", DropReason::Truncated, true,
-                   [](auto r) { r.resize(r.size() / 2); return r; }},
-        Corruption{"oversize dims", DropReason::OversizeDims, true,
-                   [](auto r) { return with_header(r, [](RecordHeader& h) { h.dims[1] = 2000; }); }},
+                   [](auto r) {
+                     r.resize(r.size() / 2);
+                     return r;
+                   }},
+        Corruption{
+            "oversize dims", DropReason::OversizeDims, true,
+            [](auto r) { return with_header(r, [](RecordHeader& h) { h.dims[1] = 2000; }); }},
         Corruption{"zero dims", DropReason::ZeroDims, true,
                    [](auto r) { return with_header(r, [](RecordHeader& h) { h.dims[2] = 0; }); }},
-        Corruption{"payload size", DropReason::PayloadSizeMismatch, true,
-                   [](auto r) {
-                     return with_header(r, [](RecordHeader& h) { h.payload_bytes -= 1; });
-                   }},
+        Corruption{
+            "payload size", DropReason::PayloadSizeMismatch, true,
+            [](auto r) { return with_header(r, [](RecordHeader& h) { h.payload_bytes -= 1; }); }},
         Corruption{"bad version", DropReason::BadVersion, true,
                    [](auto r) { return with_header(r, [](RecordHeader& h) { h.version = 2; }); }},
         Corruption{"bad kind", DropReason::BadKind, true,
                    [](auto r) { return with_header(r, [](RecordHeader& h) { h.kind = 9; }); }},
-        Corruption{"bad voxel type", DropReason::BadVoxelType, true,
-                   [](auto r) { return with_header(r, [](RecordHeader& h) { h.voxel_type = 3; }); }},
+        Corruption{
+            "bad voxel type", DropReason::BadVoxelType, true,
+            [](auto r) { return with_header(r, [](RecordHeader& h) { h.voxel_type = 3; }); }},
         Corruption{"bad flags", DropReason::BadFlags, true,
                    [](auto r) { return with_header(r, [](RecordHeader& h) { h.flags = 1; }); }}),
     [](const auto& info) {

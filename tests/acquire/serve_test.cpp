@@ -1,12 +1,10 @@
 // probe-sim serve in a child process, read by the socket source: clean streams, every injected
 // fault accounted for, and a served replay of a recording.
+#include <fcntl.h>
 #include <gtest/gtest.h>
-
 #include <signal.h>
 #include <sys/wait.h>
 #include <unistd.h>
-
-#include <fcntl.h>
 
 #include <filesystem>
 #include <fstream>
@@ -107,9 +105,14 @@ Tally drain(Source& source, std::chrono::seconds budget = 20s) {
     }
     const AcquireError& e = r.error();
     switch (e.code) {
-      case AcquireError::Code::Timeout: break;
-      case AcquireError::Code::EndOfStream: t.ended = true; return t;
-      case AcquireError::Code::Disconnected: ++t.disconnects; break;
+      case AcquireError::Code::Timeout:
+        break;
+      case AcquireError::Code::EndOfStream:
+        t.ended = true;
+        return t;
+      case AcquireError::Code::Disconnected:
+        ++t.disconnects;
+        break;
       case AcquireError::Code::Lost:
         ++t.lost_events;
         for (std::uint64_t s = 0; s < e.count; ++s) ++t.accounted[*e.sequence + s];
@@ -117,10 +120,14 @@ Tally drain(Source& source, std::chrono::seconds budget = 20s) {
       case AcquireError::Code::BadRecord:
       case AcquireError::Code::Incomplete:
         (e.code == AcquireError::Code::BadRecord ? t.bad_records : t.incomplete)++;
-        if (e.sequence) ++t.accounted[*e.sequence];
-        else ++t.unsequenced_bad;
+        if (e.sequence)
+          ++t.accounted[*e.sequence];
+        else
+          ++t.unsequenced_bad;
         break;
-      default: ADD_FAILURE() << "unexpected " << to_string(e); return t;
+      default:
+        ADD_FAILURE() << "unexpected " << to_string(e);
+        return t;
     }
   }
   ADD_FAILURE() << "stream did not end within the budget";
@@ -135,8 +142,8 @@ int count_lines(const std::string& log, const std::string& what) {
 
 TEST(ProbeSimServe, StreamsConsecutiveVolumes) {
   const fs::path sock = temp_dir() / "clean.sock";
-  ProbeSim sim({"--phantom", "sphere", "--size", "32", "--rate", "100", "--count", "25",
-                "--listen", "unix:" + sock.string()},
+  ProbeSim sim({"--phantom", "sphere", "--size", "32", "--rate", "100", "--count", "25", "--listen",
+                "unix:" + sock.string()},
                temp_dir() / "clean.log");
   auto source = connect("unix:" + sock.string());
   ASSERT_TRUE(source);
@@ -154,10 +161,28 @@ TEST(ProbeSimServe, StreamsConsecutiveVolumes) {
 TEST(ProbeSimServe, EveryInjectedFaultIsAccountedAndNoGoodVolumeLost) {
   const fs::path sock = temp_dir() / "faults.sock";
   const int count = 60;
-  ProbeSim sim({"--phantom", "torus", "--size", "32", "--rate", "200", "--count",
-                std::to_string(count), "--listen", "unix:" + sock.string(), "--corrupt-every", "7",
-                "--drop-every", "11", "--truncate-every", "17", "--disconnect-every", "23",
-                "--down-ms", "200", "--fault-seed", "3"},
+  ProbeSim sim({"--phantom",
+                "torus",
+                "--size",
+                "32",
+                "--rate",
+                "200",
+                "--count",
+                std::to_string(count),
+                "--listen",
+                "unix:" + sock.string(),
+                "--corrupt-every",
+                "7",
+                "--drop-every",
+                "11",
+                "--truncate-every",
+                "17",
+                "--disconnect-every",
+                "23",
+                "--down-ms",
+                "200",
+                "--fault-seed",
+                "3"},
                temp_dir() / "faults.log");
   auto source = connect("unix:" + sock.string());
   ASSERT_TRUE(source);
@@ -181,13 +206,15 @@ TEST(ProbeSimServe, EveryInjectedFaultIsAccountedAndNoGoodVolumeLost) {
   EXPECT_EQ(t.accounted.size(), static_cast<std::size_t>(count));
   EXPECT_EQ(t.volumes.size() + static_cast<std::size_t>(corrupt + drop + truncate),
             static_cast<std::size_t>(count))
-      << "good volumes received + faults accounted == records sent\n" << log;
+      << "good volumes received + faults accounted == records sent\n"
+      << log;
   EXPECT_EQ(t.incomplete, truncate);
   EXPECT_EQ(t.disconnects, truncate + disconnect);
   // No good volume lost: every sequence the log names as faulty is missing, every other arrived.
   std::set<std::uint64_t> faulty;
   const std::regex fault_re("fault (corrupt|drop|truncate) seq=([0-9]+)");
-  for (auto it = std::sregex_iterator(log.begin(), log.end(), fault_re); it != std::sregex_iterator(); ++it) {
+  for (auto it = std::sregex_iterator(log.begin(), log.end(), fault_re);
+       it != std::sregex_iterator(); ++it) {
     faulty.insert(std::stoull((*it)[2]));
   }
   std::set<std::uint64_t> received;

@@ -1,6 +1,5 @@
 // Socket, replay and recording sources against in-process servers and files.
 #include <gtest/gtest.h>
-
 #include <netinet/in.h>
 #include <sys/socket.h>
 #include <sys/un.h>
@@ -90,7 +89,8 @@ class TestServer {
 };
 
 // Calls next() until a volume or a non-timeout error arrives (bounded).
-tl::expected<RawVolume, AcquireError> next_event(Source& source, std::chrono::milliseconds budget = 3s) {
+tl::expected<RawVolume, AcquireError> next_event(Source& source,
+                                                 std::chrono::milliseconds budget = 3s) {
   const auto end = Clock::now() + budget;
   for (;;) {
     auto r = source.next(100ms);
@@ -131,7 +131,8 @@ TEST(SocketSource, TcpReceivesVolumes) {
   TestServer server(0);
   std::thread writer([&] {
     ASSERT_TRUE(server.accept_client());
-    for (int s = 0; s < 5; ++s) server.send(record(make_volume(s, {20, 20, 20}, ProbeVoxelType::UInt16)));
+    for (int s = 0; s < 5; ++s)
+      server.send(record(make_volume(s, {20, 20, 20}, ProbeVoxelType::UInt16)));
   });
   auto source = open_source("tcp:127.0.0.1:" + std::to_string(server.port()));
   ASSERT_TRUE(source) << to_string(source.error());
@@ -221,7 +222,8 @@ TEST(SocketSource, InterruptWakesABlockedNext) {
 
 void write_file(const fs::path& path, const std::vector<std::uint8_t>& bytes) {
   std::ofstream out(path, std::ios::binary);
-  out.write(reinterpret_cast<const char*>(bytes.data()), static_cast<std::streamsize>(bytes.size()));
+  out.write(reinterpret_cast<const char*>(bytes.data()),
+            static_cast<std::streamsize>(bytes.size()));
 }
 
 std::vector<std::uint8_t> read_file(const fs::path& path) {
@@ -234,7 +236,10 @@ TEST(Recording, SocketStreamIsRecordedByteForByteAndReplays) {
   const fs::path usv = temp_dir() / "record.usv";
   TestServer server(path);
   std::vector<std::uint8_t> sent_volumes;
-  for (int s = 0; s < 6; ++s) append(sent_volumes, record(make_volume(s, {24, 20, 16}, s % 2 ? ProbeVoxelType::UInt16 : ProbeVoxelType::UInt8)));
+  for (int s = 0; s < 6; ++s)
+    append(sent_volumes,
+           record(make_volume(s, {24, 20, 16},
+                              s % 2 ? ProbeVoxelType::UInt16 : ProbeVoxelType::UInt8)));
   std::thread writer([&] {
     ASSERT_TRUE(server.accept_client());
     server.send(encode_heartbeat(0, 5));
@@ -352,11 +357,13 @@ TEST(Replay, DirectoryUsesTheRegisteredReaderInNameOrder) {
   const fs::path dir = temp_dir() / "volumes";
   fs::create_directories(dir);
   for (int i : {2, 0, 1}) {
-    write_file(dir / ("vol_" + std::to_string(i) + ".nrrd"), record(make_volume(50 + i, {8, 8, 8})));
+    write_file(dir / ("vol_" + std::to_string(i) + ".nrrd"),
+               record(make_volume(50 + i, {8, 8, 8})));
   }
   write_file(dir / "notes.txt", {1, 2, 3});
   // acquire's own replay: knows no volume files.
-  EXPECT_EQ(open_source("replay:" + dir.string()).error().code, AcquireError::Code::InvalidArgument);
+  EXPECT_EQ(open_source("replay:" + dir.string()).error().code,
+            AcquireError::Code::InvalidArgument);
   const SourceOpener opener = replay_opener({{".nrrd"}, read_record_file});
   auto uri = parse_source_uri("replay:" + dir.string());
   ASSERT_TRUE(uri);

@@ -1,10 +1,10 @@
+#include "daemon/internal/metrics.h"
+
 #include <gtest/gtest.h>
 
 #include <cmath>
 #include <limits>
 #include <random>
-
-#include "daemon/internal/metrics.h"
 
 namespace sonomesh::daemon::internal {
 namespace {
@@ -39,14 +39,16 @@ TEST(DistanceTransform, MatchesBruteForceOnAnisotropicGrid) {
           for (int b = 0; b < dims.y(); ++b)
             for (int a = 0; a < dims.x(); ++a)
               if (feature[(c * dims.y() + b) * dims.x() + a])
-                best = std::min(best, Vec3f(i - a, j - b, k - c).cwiseProduct(spacing).squaredNorm());
-        EXPECT_NEAR(d2[(k * dims.y() + j) * dims.x() + i], best, 1e-4f) << i << "," << j << "," << k;
+                best =
+                    std::min(best, Vec3f(i - a, j - b, k - c).cwiseProduct(spacing).squaredNorm());
+        EXPECT_NEAR(d2[(k * dims.y() + j) * dims.x() + i], best, 1e-4f)
+            << i << "," << j << "," << k;
       }
 }
 
 TEST(DistanceTransform, NoFeatureIsInfinitelyFar) {
-  const auto d2 = squared_distance_transform_mm2(std::vector<bool>(8, false), Vec3i(2, 2, 2),
-                                                 Vec3f::Ones());
+  const auto d2 =
+      squared_distance_transform_mm2(std::vector<bool>(8, false), Vec3i(2, 2, 2), Vec3f::Ones());
   for (float value : d2) EXPECT_TRUE(std::isinf(value));
 }
 

@@ -1,8 +1,9 @@
 // End to end on the simulator's phantoms: the topology and the overlap with the ground truth.
+#include "daemon/pipeline.h"
+
 #include <gtest/gtest.h>
 
 #include "daemon/internal/metrics.h"
-#include "daemon/pipeline.h"
 #include "sim/sim.h"
 
 namespace sonomesh::daemon {
@@ -44,8 +45,9 @@ TEST_P(PipelineOnPhantom, RecoversTopologyAndShape) {
   // Every balloon vertex has a stop reason; the stage timings add up to at most the total.
   EXPECT_EQ(result.balloon_stop.size(), result.balloon.vertices.size());
   const StageTimings& t = result.timings;
-  EXPECT_LE(t.smooth_ms + t.balloon_ms + t.opening_ms + t.reconstruct_ms + t.mesh_ms + t.reinflate_ms,
-            t.total_ms + 1e-6);
+  EXPECT_LE(
+      t.smooth_ms + t.balloon_ms + t.opening_ms + t.reconstruct_ms + t.mesh_ms + t.reinflate_ms,
+      t.total_ms + 1e-6);
   EXPECT_GT(t.reinflate_ms, 0.0) << "the second balloon pass ran";
 }
 
@@ -97,7 +99,8 @@ TEST_P(PipelineOnBreathingCyst, EveryFrameHasGenusOne) {
   EXPECT_EQ(result.topology.genus, 1);
 }
 
-INSTANTIATE_TEST_SUITE_P(Frames, PipelineOnBreathingCyst, ::testing::Values(0.6f, 1.4f, 2.2f, 3.0f, 3.8f, 4.6f));
+INSTANTIATE_TEST_SUITE_P(Frames, PipelineOnBreathingCyst,
+                         ::testing::Values(0.6f, 1.4f, 2.2f, 3.0f, 3.8f, 4.6f));
 
 }  // namespace
 }  // namespace sonomesh::daemon

@@ -45,8 +45,8 @@ class ProcessCommand : public ::testing::Test {
   // Runs sonomeshd with the arguments (already shell-quoted where needed).
   static Outcome run(const std::string& arguments) {
     const fs::path err = dir_ / "stderr.txt";
-    const std::string command =
-        std::string("'") + SONOMESHD_EXE + "' " + arguments + " >/dev/null 2>'" + err.string() + "'";
+    const std::string command = std::string("'") + SONOMESHD_EXE + "' " + arguments +
+                                " >/dev/null 2>'" + err.string() + "'";
     const int status = std::system(command.c_str());
     Outcome outcome;
     outcome.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
@@ -112,8 +112,8 @@ TEST_F(ProcessCommand, WritesEveryOutputAndTheReport) {
   for (const char* stage : {"smooth", "balloon", "opening", "reconstruct", "mesh", "total"})
     EXPECT_GE(report.at("timings_ms").at(stage).get<double>(), 0.0) << stage;
   EXPECT_GT(report.at("balloon").at("iterations").get<int>(), 0);
-  for (const char* reason : {"moving", "boundary", "curvature", "self_intersection",
-                             "iteration_limit"})
+  for (const char* reason :
+       {"moving", "boundary", "curvature", "self_intersection", "iteration_limit"})
     EXPECT_TRUE(report.at("balloon").at("stop_reasons").contains(reason)) << reason;
   EXPECT_EQ(report.at("reconstruction").at("grid").size(), 3u);
   const auto& m = report.at("mesh");
@@ -136,9 +136,8 @@ TEST_F(ProcessCommand, AcceptsASeedInMillimetres) {
 }
 
 TEST_F(ProcessCommand, MissingFileIsOneLine) {
-  expect_one_line_failure("process " + path("nope.nrrd") + " --seed-index 1,2,3 --mesh " +
-                              path("m.ply"),
-                          "nope.nrrd");
+  expect_one_line_failure(
+      "process " + path("nope.nrrd") + " --seed-index 1,2,3 --mesh " + path("m.ply"), "nope.nrrd");
 }
 
 TEST_F(ProcessCommand, WrongFormatIsOneLine) {
@@ -183,13 +182,12 @@ TEST_F(ProcessCommand, BadArgumentsAreOneLine) {
                           "seed");
   expect_one_line_failure(input + " --seed-index 1,2 --mesh " + path("m.ply"), "--seed-index");
   expect_one_line_failure(input + " --seed-index 1,2,3", "--mesh");
-  expect_one_line_failure(input + " --seed-index 1,2,3 --mesh " + path("m.ply") + " --bogus", "bogus");
+  expect_one_line_failure(input + " --seed-index 1,2,3 --mesh " + path("m.ply") + " --bogus",
+                          "bogus");
   expect_one_line_failure("", "subcommand");
 }
 
-TEST_F(ProcessCommand, HelpStillWorks) {
-  EXPECT_EQ(run("process --help").exit_code, 0);
-}
+TEST_F(ProcessCommand, HelpStillWorks) { EXPECT_EQ(run("process --help").exit_code, 0); }
 
 }  // namespace
 }  // namespace sonomesh::daemon

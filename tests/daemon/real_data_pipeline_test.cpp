@@ -19,11 +19,11 @@ const fs::path kReal = fs::path(SONOMESH_SHARED_DATA) / "real";
 
 // Reads a real volume. CI keeps shared/ beside the checkout: a missing file is a failure, not a
 // skip (as in tests/volume/real_data_test.cpp).
-#define READ_OR_FAIL(var, relative)                                                 \
-  const fs::path var##_path = kReal / (relative);                                   \
+#define READ_OR_FAIL(var, relative)                                                    \
+  const fs::path var##_path = kReal / (relative);                                      \
   if (!fs::exists(var##_path)) FAIL() << "real sample volume missing: " << var##_path; \
-  auto var##_read = volume::read_volume(var##_path);                            \
-  ASSERT_TRUE(var##_read) << var##_read.error->message;                         \
+  auto var##_read = volume::read_volume(var##_path);                                   \
+  ASSERT_TRUE(var##_read) << var##_read.error->message;                                \
   const volume::Volume& var = var##_read.volume
 
 // A voxel index as the file numbers it, for a file whose axes the reader flipped (file j ->

@@ -58,7 +58,8 @@ FakeUsbBus::~FakeUsbBus() {
 
 FakeUsbProbe& FakeUsbBus::add_probe(FakeUsbProbe::Options options) {
   const int devnum = 2 + static_cast<int>(probes_.size());
-  probes_.push_back(std::unique_ptr<FakeUsbProbe>(new FakeUsbProbe(*this, std::move(options), devnum)));
+  probes_.push_back(
+      std::unique_ptr<FakeUsbProbe>(new FakeUsbProbe(*this, std::move(options), devnum)));
   return *probes_.back();
 }
 
@@ -92,18 +93,19 @@ FakeUsbProbe::~FakeUsbProbe() {
 std::vector<std::uint8_t> FakeUsbProbe::descriptors() const {
   const bool has_serial = !options_.serial.empty();
   std::vector<std::uint8_t> d = {
-      // device: USB 2.0, vendor class, ep0 64 bytes, VID, PID, bcdDevice 1.00, strings 1/2/3, 1 config
-      18, 1, 0x00, 0x02, 0x00, 0x00, 0x00, 64,
-      static_cast<std::uint8_t>(options_.vendor_id & 0xFF), static_cast<std::uint8_t>(options_.vendor_id >> 8),
-      static_cast<std::uint8_t>(options_.product_id & 0xFF), static_cast<std::uint8_t>(options_.product_id >> 8),
-      0x00, 0x01, 1, 2, static_cast<std::uint8_t>(has_serial ? 3 : 0), 1,
+      // device: USB 2.0, vendor class, ep0 64 bytes, VID, PID, bcdDevice 1.00, strings 1/2/3, 1
+      // config
+      18, 1, 0x00, 0x02, 0x00, 0x00, 0x00, 64, static_cast<std::uint8_t>(options_.vendor_id & 0xFF),
+      static_cast<std::uint8_t>(options_.vendor_id >> 8),
+      static_cast<std::uint8_t>(options_.product_id & 0xFF),
+      static_cast<std::uint8_t>(options_.product_id >> 8), 0x00, 0x01, 1, 2,
+      static_cast<std::uint8_t>(has_serial ? 3 : 0), 1,
       // configuration 1: 32 bytes total, 1 interface, self powered
       9, 2, 32, 0, 1, 1, 0, 0xC0, 50,
       // interface 0: 2 endpoints, vendor specific
       9, 4, 0, 0, 2, 0xFF, 0x00, 0x00, 0,
       // bulk IN 0x81 and bulk OUT 0x01, 512-byte packets (high speed)
-      7, 5, kBulkIn, 2, 0x00, 0x02, 0,
-      7, 5, 0x01, 2, 0x00, 0x02, 0};
+      7, 5, kBulkIn, 2, 0x00, 0x02, 0, 7, 5, 0x01, 2, 0x00, 0x02, 0};
   return d;
 }
 
@@ -117,23 +119,27 @@ std::string FakeUsbProbe::description() const {
   std::snprintf(busdev, sizeof busdev, "bus/usb/001/%03d", devnum_);
   const std::string hex = hex_upper(descriptors());
   std::string s = "P: " + syspath_.substr(4) + "\n" +  // without the leading /sys
-                  "N: " + busdev + "=" + hex + "\n" +
-                  "E: DEVNAME=/dev/" + busdev + "\n"
+                  "N: " + busdev + "=" + hex + "\n" + "E: DEVNAME=/dev/" + busdev +
+                  "\n"
                   "E: DEVTYPE=usb_device\n"
                   "E: DRIVER=usb\n"
                   "E: SUBSYSTEM=usb\n"
-                  "E: PRODUCT=" + ids + "\n" +
+                  "E: PRODUCT=" +
+                  ids + "\n" +
                   "E: BUSNUM=001\n"
-                  "E: DEVNUM=" + std::string(busdev).substr(std::strlen(busdev) - 3) + "\n" +
+                  "E: DEVNUM=" +
+                  std::string(busdev).substr(std::strlen(busdev) - 3) + "\n" +
                   "E: MAJOR=189\n"
-                  "E: MINOR=" + std::to_string(devnum_ - 1) + "\n" +
+                  "E: MINOR=" +
+                  std::to_string(devnum_ - 1) + "\n" +
                   "A: busnum=1\n"
-                  "A: devnum=" + std::to_string(devnum_) + "\n" +
+                  "A: devnum=" +
+                  std::to_string(devnum_) + "\n" +
                   "A: speed=480\n"
                   "A: bConfigurationValue=1\n"
                   "A: bNumConfigurations=1\n"
-                  "A: idVendor=" + vid + "\n" +
-                  "A: idProduct=" + pid + "\n" +
+                  "A: idVendor=" +
+                  vid + "\n" + "A: idProduct=" + pid + "\n" +
                   "A: manufacturer=" + options_.manufacturer + "\n" +
                   "A: product=" + options_.product + "\n";
   if (!options_.serial.empty()) s += "A: serial=" + options_.serial + "\n";
@@ -231,7 +237,8 @@ int FakeUsbProbe::on_ioctl(UMockdevIoctlBase*, UMockdevIoctlClient* client, void
 
 bool FakeUsbProbe::fill_control(Urb& urb) {
   // Setup packet = first 8 bytes of the buffer; data stage follows it.
-  UMockdevIoctlData* buf = resolve(urb.data, kBufferOffset, static_cast<std::size_t>(urb.buffer_length));
+  UMockdevIoctlData* buf =
+      resolve(urb.data, kBufferOffset, static_cast<std::size_t>(urb.buffer_length));
   if (!buf || urb.buffer_length < 8) {
     urb.status = -EINVAL;
     return false;
@@ -297,8 +304,8 @@ bool FakeUsbProbe::handle_ioctl(UMockdevIoctlClient* client) {
       UMockdevIoctlData* d = resolve(arg, 0, sizeof(std::uint32_t));
       if (!d) break;
       const std::uint32_t caps = USBDEVFS_CAP_BULK_SCATTER_GATHER | USBDEVFS_CAP_BULK_CONTINUATION |
-                                 USBDEVFS_CAP_NO_PACKET_SIZE_LIM | USBDEVFS_CAP_REAP_AFTER_DISCONNECT |
-                                 USBDEVFS_CAP_ZERO_PACKET;
+                                 USBDEVFS_CAP_NO_PACKET_SIZE_LIM |
+                                 USBDEVFS_CAP_REAP_AFTER_DISCONNECT | USBDEVFS_CAP_ZERO_PACKET;
       std::memcpy(d->data, &caps, sizeof caps);
       umockdev_ioctl_client_complete(client, 0, 0);
       g_object_unref(d);
@@ -408,7 +415,8 @@ bool FakeUsbProbe::handle_ioctl(UMockdevIoctlClient* client) {
       if (!in_urbs_.empty() && available_locked() > 0) {
         Urb urb = in_urbs_.front();
         in_urbs_.pop_front();
-        const std::size_t n = std::min<std::size_t>(available_locked(), static_cast<std::size_t>(urb.buffer_length));
+        const std::size_t n =
+            std::min<std::size_t>(available_locked(), static_cast<std::size_t>(urb.buffer_length));
         UMockdevIoctlData* buf = resolve(urb.data, kBufferOffset, n);
         auto* u = reinterpret_cast<usbdevfs_urb*>(urb.data->data);
         if (buf) {

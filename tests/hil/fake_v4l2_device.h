@@ -25,7 +25,7 @@ class FakeV4l2Device {
  public:
   struct Options {
     int width = 48;
-    int height = 49;  // tagged mode: row 0 holds the slice tag
+    int height = 49;   // tagged mode: row 0 holds the slice tag
     bool y16 = false;  // initial format (S_FMT may switch between GREY and Y16)
     std::string name = "video0";
   };
@@ -78,8 +78,8 @@ class FakeV4l2Device {
 };
 
 /// The 32-byte slice tag a tagged V4L2 probe puts at the start of row 0.
-std::vector<std::uint8_t> encode_slice_tag(std::uint64_t volume_sequence, int slice_index, int slice_count,
-                                           const std::array<float, 3>& spacing_mm);
+std::vector<std::uint8_t> encode_slice_tag(std::uint64_t volume_sequence, int slice_index,
+                                           int slice_count, const std::array<float, 3>& spacing_mm);
 
 /// Frames a tagged probe sends for one volume: frame z = tag row + the volume's slice z
 /// (width = nx, height = ny + 1). UInt16 volumes give Y16 frames.

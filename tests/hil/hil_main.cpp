@@ -1,13 +1,12 @@
 // GoogleTest main for the hil suite: re-executes itself under libumockdev-preload when needed, so
 // the binary runs directly (ctest, IDE) without umockdev-wrapper (docs/hil-emulation.md).
 #include <gtest/gtest.h>
+#include <unistd.h>
 
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
 #include <string>
-
-#include <unistd.h>
 
 int main(int argc, char** argv) {
   const char* preload = std::getenv("LD_PRELOAD");

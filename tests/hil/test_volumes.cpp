@@ -19,7 +19,8 @@ acquire::RawVolume probe_volume(std::uint64_t sequence, int size, acquire::Probe
     // stride mistake on the way cannot go unnoticed.
     std::vector<std::uint8_t> wide(v.voxels.size() * 2);
     for (std::size_t k = 0; k < v.voxels.size(); ++k) {
-      const auto value = static_cast<std::uint16_t>((v.voxels[k] << 8) | ((k * 7 + sequence) & 0xFF));
+      const auto value =
+          static_cast<std::uint16_t>((v.voxels[k] << 8) | ((k * 7 + sequence) & 0xFF));
       std::memcpy(&wide[2 * k], &value, 2);  // little endian, as the probe sends it
     }
     v.voxels = std::move(wide);

@@ -46,11 +46,14 @@ std::unique_ptr<acquire::Source> open_or_fail(const std::string& uri) {
 }
 
 /// next() until something other than Timeout arrives (or `budget` runs out).
-tl::expected<RawVolume, AcquireError> next_non_timeout(acquire::Source& source, std::chrono::milliseconds budget) {
+tl::expected<RawVolume, AcquireError> next_non_timeout(acquire::Source& source,
+                                                       std::chrono::milliseconds budget) {
   const auto until = std::chrono::steady_clock::now() + budget;
   for (;;) {
     auto r = source.next(100ms);
-    if (r || r.error().code != AcquireError::Code::Timeout || std::chrono::steady_clock::now() >= until) return r;
+    if (r || r.error().code != AcquireError::Code::Timeout ||
+        std::chrono::steady_clock::now() >= until)
+      return r;
   }
 }
 
@@ -59,7 +62,8 @@ TEST(UsbHil, VolumesArriveBitExact) {
   FakeUsbProbe& probe = bus.add_probe({});
   std::vector<RawVolume> sent;
   for (std::uint64_t seq = 100; seq < 104; ++seq) {
-    sent.push_back(probe_volume(seq, kSize, seq % 2 ? acquire::ProbeVoxelType::UInt16 : acquire::ProbeVoxelType::UInt8));
+    sent.push_back(probe_volume(
+        seq, kSize, seq % 2 ? acquire::ProbeVoxelType::UInt16 : acquire::ProbeVoxelType::UInt8));
     probe.push(record(sent.back()));
   }
   // A heartbeat between volumes is consumed silently.
@@ -92,7 +96,8 @@ TEST(UsbHil, RecordLargerThanOneTransferIsReassembled) {
     std::size_t at = 0, piece = 1000;
     while (at < bytes.size()) {
       const std::size_t n = std::min(piece, bytes.size() - at);
-      probe.push(std::vector<std::uint8_t>(bytes.begin() + static_cast<long>(at), bytes.begin() + static_cast<long>(at + n)));
+      probe.push(std::vector<std::uint8_t>(bytes.begin() + static_cast<long>(at),
+                                           bytes.begin() + static_cast<long>(at + n)));
       at += n;
       piece = piece * 3 + 17;
       std::this_thread::sleep_for(2ms);
@@ -148,7 +153,8 @@ TEST(UsbHil, SerialSelectsTheProbe) {
 
   auto missing = acquire::open_source("usb:1209:0001/PROBE-C");
   ASSERT_FALSE(missing);
-  EXPECT_EQ(missing.error().code, AcquireError::Code::NotFound) << acquire::to_string(missing.error());
+  EXPECT_EQ(missing.error().code, AcquireError::Code::NotFound)
+      << acquire::to_string(missing.error());
   auto other_pid = acquire::open_source("usb:1209:0002");
   ASSERT_FALSE(other_pid);
   EXPECT_EQ(other_pid.error().code, AcquireError::Code::NotFound);
@@ -185,7 +191,8 @@ TEST(UsbHil, UnplugMidVolumeGivesDisconnectedThenRecovers) {
   EXPECT_EQ(cut.error().sequence.value_or(0), 2u);
   auto down = source->next(2s);
   ASSERT_FALSE(down);
-  EXPECT_EQ(down.error().code, AcquireError::Code::Disconnected) << acquire::to_string(down.error());
+  EXPECT_EQ(down.error().code, AcquireError::Code::Disconnected)
+      << acquire::to_string(down.error());
   // While the probe is away: Timeout, not Disconnected again.
   for (int i = 0; i < 3; ++i) {
     auto r = source->next(120ms);

@@ -19,7 +19,8 @@ using namespace std::chrono_literals;
 
 constexpr int kSize = 32;
 
-std::unique_ptr<acquire::Source> open_or_fail(const std::string& uri, const acquire::SourceOptions& options = {}) {
+std::unique_ptr<acquire::Source> open_or_fail(const std::string& uri,
+                                              const acquire::SourceOptions& options = {}) {
   auto source = acquire::open_source(uri, options);
   if (!source) {
     ADD_FAILURE() << uri << ": " << acquire::to_string(source.error());
@@ -249,7 +250,8 @@ TEST(V4l2Hil, UnplugGivesDisconnectedOnceThenRecovers) {
   EXPECT_EQ(cut.error().sequence.value_or(0), 2u);
   auto down = source->next(2s);
   ASSERT_FALSE(down);
-  EXPECT_EQ(down.error().code, AcquireError::Code::Disconnected) << acquire::to_string(down.error());
+  EXPECT_EQ(down.error().code, AcquireError::Code::Disconnected)
+      << acquire::to_string(down.error());
   for (int i = 0; i < 3; ++i) {
     auto r = source->next(120ms);
     ASSERT_FALSE(r);
@@ -276,7 +278,8 @@ TEST(V4l2Hil, MissingDeviceAndBadOptionsAreClearErrors) {
   FakeV4l2Device device({.width = kSize, .height = kSize + 1});
   auto missing = acquire::open_source("v4l2:/dev/video9");
   ASSERT_FALSE(missing);
-  EXPECT_EQ(missing.error().code, AcquireError::Code::NotFound) << acquire::to_string(missing.error());
+  EXPECT_EQ(missing.error().code, AcquireError::Code::NotFound)
+      << acquire::to_string(missing.error());
   auto bad = acquire::open_source("v4l2:" + device.device_path() + "?slices=0");
   ASSERT_FALSE(bad);
   EXPECT_EQ(bad.error().code, AcquireError::Code::InvalidArgument);

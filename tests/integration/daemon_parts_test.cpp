@@ -5,8 +5,8 @@
 
 #include <filesystem>
 #include <fstream>
-#include <nlohmann/json.hpp>
 #include <limits>
+#include <nlohmann/json.hpp>
 #include <set>
 
 #include "daemon/internal/bounded_queue.h"
@@ -290,16 +290,17 @@ TEST(SeedPolicy, DecideStartColdForEachFailedCondition) {
   EXPECT_EQ(cold_reason([](StartInputs& in) { in.seed_tracked = false; }), "seed not tracked");
   EXPECT_EQ(cold_reason([](StartInputs& in) { in.same_grid = false; }), "grid changed");
   EXPECT_EQ(cold_reason([](StartInputs& in) { in.motion_vox = 7.0f; }).rfind("moved", 0), 0u);
-  EXPECT_EQ(cold_reason([](StartInputs& in) { in.volume_change = 0.4f; }),
-            "volume changed 40 %");
+  EXPECT_EQ(cold_reason([](StartInputs& in) { in.volume_change = 0.4f; }), "volume changed 40 %");
   EXPECT_EQ(cold_reason([](StartInputs& in) { in.since_refused = 3; }),
             "warm start refused recently");
   StartInputs after_backoff = warm_inputs();
   after_backoff.since_refused = StartLimits{}.refused_backoff_volumes;
   EXPECT_TRUE(decide_start(after_backoff).warm);
   // NaN motion (a degenerate centroid) is not "small".
-  EXPECT_FALSE(decide_start({.have_previous = true, .previous_quality_ok = true,
-                             .seed_tracked = true, .same_grid = true,
+  EXPECT_FALSE(decide_start({.have_previous = true,
+                             .previous_quality_ok = true,
+                             .seed_tracked = true,
+                             .same_grid = true,
                              .motion_vox = std::numeric_limits<float>::quiet_NaN()})
                    .warm);
 }

@@ -1,8 +1,8 @@
 // `sonomeshd run` end to end: child processes (probe-sim serve, sonomeshd run) over unix sockets,
 // the journal read back and checked for "every sequence exactly once", meshes read back for their
 // genus, faults, backpressure, signals and the HTTP endpoints.
-#include <gtest/gtest.h>
 #include <fcntl.h>
+#include <gtest/gtest.h>
 #include <signal.h>
 #include <spawn.h>
 #include <sys/wait.h>
@@ -13,12 +13,11 @@
 #include <fstream>
 #include <functional>
 #include <map>
+#include <nlohmann/json.hpp>
 #include <set>
 #include <string>
 #include <thread>
 #include <vector>
-
-#include <nlohmann/json.hpp>
 
 #include "child_process.h"
 #include "daemon/internal/atomic_file.h"
@@ -131,8 +130,8 @@ std::unique_ptr<Child> start_probe(const fs::path& dir, const std::vector<std::s
 
 std::unique_ptr<Child> start_daemon(const fs::path& dir, const std::string& source,
                                     const std::vector<std::string>& extra = {}) {
-  std::vector<std::string> argv{SONOMESHD_EXE, "run",       "--source", source,
-                                "--out",       (dir / "out").string(), "--http", "off"};
+  std::vector<std::string> argv{SONOMESHD_EXE,          "run",    "--source", source, "--out",
+                                (dir / "out").string(), "--http", "off"};
   argv.insert(argv.end(), extra.begin(), extra.end());
   return std::make_unique<Child>(argv, dir / "daemon");
 }
@@ -143,18 +142,18 @@ std::unique_ptr<Child> start_daemon(const fs::path& dir, const std::string& sour
 
 TEST(DaemonRun, SocketStreamEverySequenceOnceWithThePhantomsGenus) {
   const ScratchDir dir("stream");
-  auto probe = start_probe(dir, {"--phantom", "torus", "--size", "64", "--rate", "4", "--count",
-                                 "6"});
+  auto probe =
+      start_probe(dir, {"--phantom", "torus", "--size", "64", "--rate", "4", "--count", "6"});
   // A socket probe has no known seed: give the phantom's (the torus' centre is in its hole, which
   // the volume-centre fallback would hit).
   sonomesh::sim::PhantomSpec spec;
   spec.phantom = "torus";
   spec.size_vox = 64;
   const auto seed = sonomesh::sim::make_phantom(spec).seed_mm;
-  auto daemon = start_daemon(dir, "unix:" + (dir / "probe.sock").string(),
-                             {"--seed-mm", std::to_string(seed.x()) + "," +
-                                               std::to_string(seed.y()) + "," +
-                                               std::to_string(seed.z())});
+  auto daemon =
+      start_daemon(dir, "unix:" + (dir / "probe.sock").string(),
+                   {"--seed-mm", std::to_string(seed.x()) + "," + std::to_string(seed.y()) + "," +
+                                     std::to_string(seed.z())});
   const auto code = daemon->wait(30000ms);  // end of stream: drain and exit
   ASSERT_TRUE(code.has_value()) << "daemon did not exit at end of stream";
   EXPECT_EQ(*code, 0) << daemon->stderr_text();
@@ -185,10 +184,10 @@ TEST(DaemonRun, SocketStreamEverySequenceOnceWithThePhantomsGenus) {
 
 TEST(DaemonRun, FaultsAreAccountedForAndTheDaemonReconnects) {
   const ScratchDir dir("faults");
-  auto probe = start_probe(dir, {"--phantom", "sphere", "--size", "48", "--rate", "20", "--count",
-                                 "40", "--corrupt-every", "6", "--drop-every", "7",
-                                 "--truncate-every", "17", "--disconnect-every", "13",
-                                 "--down-ms", "300"});
+  auto probe =
+      start_probe(dir, {"--phantom", "sphere", "--size", "48", "--rate", "20", "--count", "40",
+                        "--corrupt-every", "6", "--drop-every", "7", "--truncate-every", "17",
+                        "--disconnect-every", "13", "--down-ms", "300"});
   auto daemon = start_daemon(dir, "unix:" + (dir / "probe.sock").string());
   const auto code = daemon->wait(40000ms);
   ASSERT_TRUE(code.has_value()) << "daemon did not exit at end of stream";
@@ -196,8 +195,8 @@ TEST(DaemonRun, FaultsAreAccountedForAndTheDaemonReconnects) {
   const fs::path out = dir / "out";
   const auto by_seq = check_journal(out);
   expect_contiguous(by_seq, 0, 39);
-  EXPECT_GE(count_status(by_seq, "lost"), 1);       // dropped records are a gap
-  EXPECT_GE(count_status(by_seq, "rejected"), 1);   // corrupted payloads / truncated records
+  EXPECT_GE(count_status(by_seq, "lost"), 1);      // dropped records are a gap
+  EXPECT_GE(count_status(by_seq, "rejected"), 1);  // corrupted payloads / truncated records
   EXPECT_GE(count_status(by_seq, "processed"), 5);
   EXPECT_GE(events_of(out, "source_lost").size(), 1u);
   EXPECT_GE(events_of(out, "source_reconnected").size(), 1u);
@@ -209,8 +208,8 @@ TEST(DaemonRun, FastSourceIsSkippedNotQueuedAndMemoryStaysFlat) {
   const ScratchDir dir("backpressure");
   // 150 volumes/s for 1 s: far faster than one worker at 64³. (At 48³ and 60/s the worker kept
   // up once the balloon got fast, ~15 ms a volume, and nothing was skipped.)
-  auto probe = start_probe(dir, {"--phantom", "sphere", "--size", "64", "--rate", "150", "--count",
-                                 "150"});
+  auto probe =
+      start_probe(dir, {"--phantom", "sphere", "--size", "64", "--rate", "150", "--count", "150"});
   auto daemon = start_daemon(dir, "unix:" + (dir / "probe.sock").string());
   const fs::path out = dir / "out";
   long rss_early = 0, rss_peak = 0;
@@ -251,8 +250,8 @@ TEST(DaemonRun, FastSourceIsSkippedNotQueuedAndMemoryStaysFlat) {
   EXPECT_LT(max_latency_ms, 4 * worst_total_ms + 500) << "latency grew with the backlog";
   ASSERT_GT(rss_early, 0);
   if (!kAddressSanitizer) {  // under ASan its quarantine grows RSS (see kAddressSanitizer)
-    EXPECT_LT(rss_peak - rss_early, 64 * 1024) << "RSS grew from " << rss_early << " kB to "
-                                                << rss_peak << " kB";
+    EXPECT_LT(rss_peak - rss_early, 64 * 1024)
+        << "RSS grew from " << rss_early << " kB to " << rss_peak << " kB";
   }
   expect_no_temporaries(out);
 }
@@ -297,8 +296,9 @@ TEST(DaemonRun, HttpEndpointsAnswerWithValidJsonAndPrometheusText) {
   const ScratchDir dir("http");
   const fs::path config = dir / "sonomeshd.toml";
   std::ofstream(config) << "[daemon]\nqueue_capacity = 2\n[http]\naddress = \"127.0.0.1:0\"\n";
-  std::vector<std::string> argv{SONOMESHD_EXE, "run", "--source", "sim:sphere?rate=5&size=48",
-                                "--out", (dir / "out").string(), "--config", config.string()};
+  std::vector<std::string> argv{
+      SONOMESHD_EXE,          "run",      "--source",     "sim:sphere?rate=5&size=48", "--out",
+      (dir / "out").string(), "--config", config.string()};
   Child daemon(argv, dir / "daemon");
   const fs::path out = dir / "out";
   ASSERT_TRUE(wait_until([&] { return !events_of(out, "http_listening").empty(); }, 10000ms))
@@ -317,7 +317,8 @@ TEST(DaemonRun, HttpEndpointsAnswerWithValidJsonAndPrometheusText) {
   ASSERT_EQ(status->status, 200);
   const auto j = nlohmann::json::parse(status->body);  // throws (fails the test) if invalid
   EXPECT_GE(j["volumes"]["processed"].get<int>(), 1);
-  for (const char* s : {"skipped", "failed", "rejected", "lost"}) EXPECT_TRUE(j["volumes"].contains(s));
+  for (const char* s : {"skipped", "failed", "rejected", "lost"})
+    EXPECT_TRUE(j["volumes"].contains(s));
   EXPECT_TRUE(j["latency_ms"]["p50"].is_number());
   EXPECT_TRUE(j["latency_ms"]["p95"].is_number());
   EXPECT_EQ(j["source"]["state"], "connected");
@@ -371,14 +372,14 @@ TEST(DaemonRun, DirectoryReplayProcessesEveryVolume) {
   fs::create_directories(dir / "volumes");
   for (int i = 0; i < 3; ++i) {
     Child gen({PROBE_SIM_EXE, "generate", "--phantom", "sphere", "--size", "48", "--seed",
-               std::to_string(i + 1), "--out", (dir / "volumes" / ("v" + std::to_string(i) + ".nrrd")).string(),
-               "--truth", (dir / ("t" + std::to_string(i) + ".nrrd")).string()},
+               std::to_string(i + 1), "--out",
+               (dir / "volumes" / ("v" + std::to_string(i) + ".nrrd")).string(), "--truth",
+               (dir / ("t" + std::to_string(i) + ".nrrd")).string()},
               dir / ("gen" + std::to_string(i)));
     ASSERT_EQ(gen.wait(30000ms), 0) << gen.stderr_text();
   }
   // Replay is not live: the source waits for the worker, nothing is skipped.
-  auto daemon = start_daemon(dir, "replay:" + (dir / "volumes").string(),
-                             {"--seed-mm", "nan"});
+  auto daemon = start_daemon(dir, "replay:" + (dir / "volumes").string(), {"--seed-mm", "nan"});
   ASSERT_EQ(daemon->wait(10000ms), 2) << "a bad --seed-mm must be refused";
   daemon = start_daemon(dir, "replay:" + (dir / "volumes").string(), {"--queue-capacity", "1"});
   const auto code = daemon->wait(30000ms);
@@ -424,9 +425,12 @@ TEST(DaemonRun, PrintConfigAndArgumentErrors) {
 
 TEST(DaemonRun, IgtlListenSendsEveryResultAndTheJournalCarriesTheVerdict) {
   const ScratchDir dir("igtl");
-  std::vector<std::string> argv{SONOMESHD_EXE, "run", "--source", "sim:sphere?rate=4&size=48",
-                                "--out", (dir / "out").string(), "--http", "off",
-                                "--igtl-listen", "127.0.0.1:0", "--target", "dark"};
+  std::vector<std::string> argv{SONOMESHD_EXE,   "run",
+                                "--source",      "sim:sphere?rate=4&size=48",
+                                "--out",         (dir / "out").string(),
+                                "--http",        "off",
+                                "--igtl-listen", "127.0.0.1:0",
+                                "--target",      "dark"};
   Child daemon(argv, dir / "daemon");
   const fs::path out = dir / "out";
   ASSERT_TRUE(wait_until([&] { return !events_of(out, "igtl_listening").empty(); }, 10000ms))

@@ -7,10 +7,9 @@
 #include <chrono>
 #include <filesystem>
 #include <fstream>
+#include <nlohmann/json.hpp>
 #include <set>
 #include <thread>
-
-#include <nlohmann/json.hpp>
 
 #include "daemon/internal/atomic_file.h"
 #include "daemon/internal/http_status.h"
@@ -30,8 +29,8 @@ using namespace std::chrono_literals;
 namespace {
 
 fs::path fresh_dir(const std::string& name) {
-  const fs::path dir = fs::temp_directory_path() /
-                       ("sonomesh_infra_" + name + "_" + std::to_string(::getpid()));
+  const fs::path dir =
+      fs::temp_directory_path() / ("sonomesh_infra_" + name + "_" + std::to_string(::getpid()));
   fs::remove_all(dir);
   fs::create_directories(dir);
   return dir;
@@ -189,8 +188,8 @@ TEST(Journal, LongRunsKeepTheClaimSetBounded) {
   const fs::path dir = fresh_dir("bounded");
   Journal j(dir / "journal.jsonl");
   for (std::uint64_t s = 0; s < 200000; ++s) ASSERT_TRUE(j.claim(s));
-  EXPECT_FALSE(j.claim(10));       // folded into the floor: still refused
-  EXPECT_FALSE(j.claim(199999));   // recent: refused
+  EXPECT_FALSE(j.claim(10));      // folded into the floor: still refused
+  EXPECT_FALSE(j.claim(199999));  // recent: refused
   EXPECT_TRUE(j.claim(200000));
 }
 

@@ -21,9 +21,9 @@ void make_manifest(const fs::path& dir, int good, const fs::path& manifest) {
   for (const auto& [phantom, seed] : kinds) {
     const fs::path vol = dir / (phantom + std::to_string(seed) + ".nrrd");
     Child gen({PROBE_SIM_EXE, "generate", "--phantom", phantom, "--size", "48", "--seed",
-                 std::to_string(seed), "--out", vol.string(), "--truth",
-                 (dir / ("truth" + std::to_string(seed) + ".nrrd")).string()},
-                dir / "gen");
+               std::to_string(seed), "--out", vol.string(), "--truth",
+               (dir / ("truth" + std::to_string(seed) + ".nrrd")).string()},
+              dir / "gen");
     ASSERT_EQ(gen.wait(60s), 0) << gen.stderr_text();
     sources.push_back(vol);
   }

@@ -4,8 +4,8 @@
 
 #include <map>
 
-#include "daemon/internal/event_hub.h"
 #include "child_process.h"
+#include "daemon/internal/event_hub.h"
 
 // Last: <httplib.h> pulls in <resolv.h>, whose `_res` macro breaks Eigen headers included after it.
 #include <httplib.h>
@@ -71,8 +71,8 @@ std::vector<std::string> journal_lines(const fs::path& path) {
 TEST(LiveEvents, OneEventPerJournalLineInOrderAndResumesAfterLastEventId) {
   ScratchDir dir("sse");
   Child daemon({SONOMESHD_EXE, "run", "--source", "sim:sphere?rate=10&size=48", "--out",
-                  (dir / "out").string(), "--http", "127.0.0.1:0"},
-                 dir / "daemon");
+                (dir / "out").string(), "--http", "127.0.0.1:0"},
+               dir / "daemon");
   const int port = http_port_of(dir / "out");
   ASSERT_GT(port, 0) << daemon.stderr_text();
 

@@ -10,8 +10,8 @@
 #include <cstdlib>
 #include <mutex>
 
-#include "daemon/internal/notifier.h"
 #include "child_process.h"
+#include "daemon/internal/notifier.h"
 
 // Last: <httplib.h> pulls in <resolv.h>, whose `_res` macro breaks Eigen headers included after it.
 #include <httplib.h>
@@ -76,9 +76,9 @@ TEST(ServiceNotify, ReadyStatusWatchdogAndStoppingFromTheDaemon) {
   NotifySocket socket(dir / "notify.sock");
   ASSERT_TRUE(socket.bound());
   Child daemon({SONOMESHD_EXE, "run", "--source", "sim:sphere?rate=4&size=48", "--out",
-                  (dir / "out").string(), "--http", "127.0.0.1:0"},
-                 dir / "daemon",
-                 {"NOTIFY_SOCKET=" + (dir / "notify.sock").string(), "WATCHDOG_USEC=200000"});
+                (dir / "out").string(), "--http", "127.0.0.1:0"},
+               dir / "daemon",
+               {"NOTIFY_SOCKET=" + (dir / "notify.sock").string(), "WATCHDOG_USEC=200000"});
   ASSERT_TRUE(wait_until([&] { return socket.count("READY=1") == 1; }, 30s))
       << daemon.stderr_text();
   // READY means usable: the HTTP server answers at once.

@@ -49,8 +49,8 @@ TEST(LivePage, DrawsMeshAndSlicesAndUpdatesWithoutReload) {
   }
   ScratchDir dir("page");
   Child daemon({SONOMESHD_EXE, "run", "--source", "sim:cyst-needle?rate=2&size=48", "--out",
-                  (dir / "out").string(), "--http", "127.0.0.1:0"},
-                 dir / "daemon");
+                (dir / "out").string(), "--http", "127.0.0.1:0"},
+               dir / "daemon");
   const int port = http_port_of(dir / "out");
   ASSERT_GT(port, 0) << daemon.stderr_text();
 
@@ -129,9 +129,9 @@ TEST(LivePage, SaysSoWhenTheProbeIsDisconnected) {
   }
   ScratchDir dir("nosrc");
   // A probe socket nobody serves: the daemon waits for it (state "connecting").
-  Child daemon({SONOMESHD_EXE, "run", "--source", "unix:" + (dir / "absent.sock").string(),
-                  "--out", (dir / "out").string(), "--http", "127.0.0.1:0"},
-                 dir / "daemon");
+  Child daemon({SONOMESHD_EXE, "run", "--source", "unix:" + (dir / "absent.sock").string(), "--out",
+                (dir / "out").string(), "--http", "127.0.0.1:0"},
+               dir / "daemon");
   const int port = http_port_of(dir / "out");
   ASSERT_GT(port, 0) << daemon.stderr_text();
   Chromium browser(dir.path());

@@ -29,7 +29,8 @@ TEST(MeshIo, PlyHeaderIsExactlyTheDesignedOne) {
   ASSERT_FALSE(write_ply(m, path).has_value());
   const std::string bytes = slurp(path);
   const std::string header =
-      "ply\nformat binary_little_endian 1.0\ncomment SPACE=LPS\nelement vertex 102\nproperty float x\n"
+      "ply\nformat binary_little_endian 1.0\ncomment SPACE=LPS\nelement vertex 102\nproperty float "
+      "x\n"
       "property float "
       "y\n"
       "property float z\nelement face 200\nproperty list uchar int vertex_indices\nend_header\n";
@@ -119,7 +120,7 @@ TEST(MeshIo, StlAndObjAreWritten) {
   EXPECT_EQ(std::count(obj.begin(), obj.end(), 'v'), 102);
   EXPECT_EQ(std::count(obj.begin(), obj.end(), 'f'), 200);
   EXPECT_NE(obj.find("\nf 1 "), std::string::npos);  // 1-based
-  EXPECT_EQ(obj.rfind("# SPACE=LPS\n", 0), 0u);           // 3D Slicer: the world frame is LPS
+  EXPECT_EQ(obj.rfind("# SPACE=LPS\n", 0), 0u);      // 3D Slicer: the world frame is LPS
   EXPECT_EQ(slurp(temp("s.stl")).rfind("SPACE=LPS", 0), 0u);
 }
 

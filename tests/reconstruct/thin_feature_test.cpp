@@ -86,7 +86,8 @@ TEST(NarrowestFeature, RejectsBadInput) {
 TEST(Poisson, NeedleTunnelTwoAndAHalfVoxelsAcrossStaysOpen) {
   const PointCloud s = ball_with_channel(kCystMm, kNeedleRadiusMm, kSpacingMm);
   const Vec3f seed(0.5f * (kCystMm + kNeedleRadiusMm), 0, 0);
-  const SurfaceResult r = reconstruct_surface(s, seed, {.cell_mm = kVoxelMm, .min_feature_cells = 4.0f});
+  const SurfaceResult r =
+      reconstruct_surface(s, seed, {.cell_mm = kVoxelMm, .min_feature_cells = 4.0f});
   EXPECT_TRUE(r.seed_enclosed);
   EXPECT_TRUE(r.topology.watertight);
   EXPECT_EQ(r.topology.components, 1);
@@ -111,8 +112,9 @@ TEST(Poisson, NeedleTunnelClosesOnAVoxelGridWithoutRefinement) {
 TEST(Poisson, WideFeaturesKeepTheRequestedCell) {
   // Speed: a target without thin parts is reconstructed on the voxel grid as before.
   const float cell = 0.5f;
-  const IndicatorGrid torus = poisson_indicator(test::torus_samples(Vec3f::Zero(), 9.0f, 3.5f, 240, 96),
-                                                {.cell_mm = cell, .min_feature_cells = 4.0f});
+  const IndicatorGrid torus =
+      poisson_indicator(test::torus_samples(Vec3f::Zero(), 9.0f, 3.5f, 240, 96),
+                        {.cell_mm = cell, .min_feature_cells = 4.0f});
   EXPECT_EQ(torus.cell_mm, cell);
   EXPECT_EQ(torus.feature_mm, std::numeric_limits<float>::infinity());
   const IndicatorGrid ball = poisson_indicator(test::sphere_samples(Vec3f::Zero(), 10.0f, 5000),

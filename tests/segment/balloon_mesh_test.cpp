@@ -1,12 +1,12 @@
 // The balloon's halfedge mesh and its remeshing (method.md §3): validity after every edit.
+#include "segment/internal/balloon_mesh.h"
+
 #include <gtest/gtest.h>
 
 #include <algorithm>
 #include <map>
 #include <random>
 #include <vector>
-
-#include "segment/internal/balloon_mesh.h"
 
 using namespace sonomesh::segment;
 using namespace sonomesh::segment::internal;
@@ -32,10 +32,11 @@ Mesh tetrahedron() {
 // edge +x +y then has a third common neighbour, +z, besides its two apexes 6 and -z.
 Mesh octahedron_with_a_valence3_vertex() {
   Mesh m;
-  m.vertices = {Vec3f(1, 0, 0), Vec3f(-1, 0, 0), Vec3f(0, 1, 0), Vec3f(0, -1, 0),
-                Vec3f(0, 0, 1), Vec3f(0, 0, -1), Vec3f(0.34f, 0.34f, 0.34f)};
+  m.vertices = {
+      Vec3f(1, 0, 0),  Vec3f(-1, 0, 0),           Vec3f(0, 1, 0), Vec3f(0, -1, 0), Vec3f(0, 0, 1),
+      Vec3f(0, 0, -1), Vec3f(0.34f, 0.34f, 0.34f)};
   const std::uint32_t px = 0, nx = 1, py = 2, ny = 3, pz = 4, nz = 5, c = 6;
-  m.triangles = {{px, py, c}, {py, pz, c}, {pz, px, c},  // the split face
+  m.triangles = {{px, py, c},  {py, pz, c},  {pz, px, c},  // the split face
                  {py, nx, pz}, {nx, ny, pz}, {ny, px, pz}, {py, px, nz},
                  {nx, py, nz}, {ny, nx, nz}, {px, ny, nz}};
   return m;

@@ -50,7 +50,8 @@ std::vector<Vec3f> truth_wall_mm(const volume::Volume& truth) {
         for (const auto& n : nb) {
           if (n[0] >= d.x() || n[1] >= d.y() || n[2] >= d.z()) continue;
           if ((t[truth.linear_index(n[0], n[1], n[2])] != 0) != in)
-            out.push_back(truth.index_to_mm(Vec3f(0.5f * (i + n[0]), 0.5f * (j + n[1]), 0.5f * (k + n[2]))));
+            out.push_back(
+                truth.index_to_mm(Vec3f(0.5f * (i + n[0]), 0.5f * (j + n[1]), 0.5f * (k + n[2]))));
         }
       }
   return out;
@@ -87,7 +88,8 @@ bool closed_and_consistently_oriented(const segment::Mesh& m) {
 double area_mm2(const segment::Mesh& m) {
   double sum = 0.0;
   for (const auto& t : m.triangles)
-    sum += 0.5 * (m.vertices[t[1]] - m.vertices[t[0]]).cross(m.vertices[t[2]] - m.vertices[t[0]]).norm();
+    sum += 0.5 *
+           (m.vertices[t[1]] - m.vertices[t[0]]).cross(m.vertices[t[2]] - m.vertices[t[0]]).norm();
   return sum;
 }
 
@@ -157,7 +159,8 @@ TEST(Balloon, TorusStaysGenusZeroAndStopsWhereTheFrontsMeet) {
   ASSERT_EQ(r.error, "");
   EXPECT_TRUE(r.converged);
   EXPECT_TRUE(closed_and_consistently_oriented(r.mesh));
-  EXPECT_EQ(segment::euler_characteristic(r.mesh), 2) << "the balloon itself never changes topology";
+  EXPECT_EQ(segment::euler_characteristic(r.mesh), 2)
+      << "the balloon itself never changes topology";
 
   // Torus axis: z through the volume centre (PhantomSpec default axis). The seed sits in the
   // tube; its two growing ends meet on the far side of the ring.
@@ -190,7 +193,8 @@ TEST(Balloon, TorusStaysGenusZeroAndStopsWhereTheFrontsMeet) {
   // only the area and the vertex count show it.
   const float half_extent_mm = p.phantom.image.max_mm().x() - centre.x();
   const double major_mm = 0.42 * half_extent_mm, tube_mm = 0.2 * half_extent_mm;  // sim's torus
-  const double torus_and_caps_mm2 = 4.0 * M_PI * M_PI * major_mm * tube_mm + 2.0 * M_PI * tube_mm * tube_mm;
+  const double torus_and_caps_mm2 =
+      4.0 * M_PI * M_PI * major_mm * tube_mm + 2.0 * M_PI * tube_mm * tube_mm;
   // (A snap without its slope threshold, reaching 3 voxels ahead, gives 1.05-1.08.)
   const double area_ratio = area_mm2(r.mesh) / torus_and_caps_mm2;
   EXPECT_GT(area_ratio, 0.97);
@@ -201,7 +205,8 @@ TEST(Balloon, TorusStaysGenusZeroAndStopsWhereTheFrontsMeet) {
   // Everything else rests on the wall.
   int boundary_far = 0;
   for (std::size_t i = 0; i < r.mesh.vertices.size(); ++i)
-    if (r.stop[i] == StopReason::Boundary && distance_to(wall, r.mesh.vertices[i]) > 1.5f * p.vox_mm)
+    if (r.stop[i] == StopReason::Boundary &&
+        distance_to(wall, r.mesh.vertices[i]) > 1.5f * p.vox_mm)
       ++boundary_far;
   EXPECT_LE(boundary_far, static_cast<int>(r.mesh.vertices.size()) / 50);
 }
@@ -228,7 +233,8 @@ TEST(Balloon, CystNeedleWrapsAroundTheNeedleWithoutLeaking) {
   }
   // The deep half of the cyst lies in the needle's shadow (the needle enters from above).
   for (const auto& v : r.mesh.vertices)
-    if (v.z() > centre.z() + 0.2f * (p.phantom.image.max_mm().z() - centre.z())) ++checked_below_needle;
+    if (v.z() > centre.z() + 0.2f * (p.phantom.image.max_mm().z() - centre.z()))
+      ++checked_below_needle;
   // Spec: within one voxel of the cyst everywhere, i.e. within 1.5 voxels of the staircase
   // samples. Measured over speckle seeds 1-6 at 64³, 80³ and 96³ (deterministic: the same
   // vertices on any thread count), with the rise summed per axis (BalloonOptions::rise_per_axis)
@@ -247,7 +253,8 @@ TEST(Balloon, RefusesASeedOnABrightStructureQuickly) {
   const Vec3f tissue = p.phantom.image.index_to_mm(Vec3f(6, 6, 6));
   const auto t0 = std::chrono::steady_clock::now();
   const auto r = segment::inflate_balloon(p.smoothed, p.gradient, tissue);
-  const double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+  const double ms =
+      std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
   EXPECT_NE(r.error, "");
   EXPECT_TRUE(r.mesh.vertices.empty());
   EXPECT_LT(ms, 2000.0) << "a refusal must not hang";  // generous: CI cores are shared
@@ -261,9 +268,9 @@ TEST(Balloon, RefusesASeedOnTheNeedle) {
   for (std::size_t i = 0; i < s.size(); ++i)
     if (s[i] > s[best]) best = i;
   const Vec3i d = p.smoothed.dims();
-  const Vec3f needle = p.smoothed.index_to_mm(Vec3f(static_cast<float>(best % d.x()),
-                                                    static_cast<float>((best / d.x()) % d.y()),
-                                                    static_cast<float>(best / (static_cast<std::size_t>(d.x()) * d.y()))));
+  const Vec3f needle = p.smoothed.index_to_mm(
+      Vec3f(static_cast<float>(best % d.x()), static_cast<float>((best / d.x()) % d.y()),
+            static_cast<float>(best / (static_cast<std::size_t>(d.x()) * d.y()))));
   const auto r = segment::inflate_balloon(p.smoothed, p.gradient, needle);
   EXPECT_NE(r.error, "");
   EXPECT_NE(r.error.find("hypoechoic"), std::string::npos);
@@ -271,15 +278,17 @@ TEST(Balloon, RefusesASeedOnTheNeedle) {
 
 TEST(Balloon, ThrowsForASeedOutsideTheVolume) {
   const Prepared p = prepare("sphere", 48);
-  EXPECT_THROW(segment::inflate_balloon(p.smoothed, p.gradient, p.phantom.image.max_mm() + Vec3f(5, 0, 0)),
-               std::invalid_argument);
+  EXPECT_THROW(
+      segment::inflate_balloon(p.smoothed, p.gradient, p.phantom.image.max_mm() + Vec3f(5, 0, 0)),
+      std::invalid_argument);
 }
 
 TEST(Balloon, HonoursTheStopToken) {
   const Prepared p = prepare("sphere", 48);
   std::stop_source source;
   source.request_stop();
-  const auto r = segment::inflate_balloon(p.smoothed, p.gradient, p.phantom.seed_mm, {}, source.get_token());
+  const auto r =
+      segment::inflate_balloon(p.smoothed, p.gradient, p.phantom.seed_mm, {}, source.get_token());
   EXPECT_TRUE(r.stats.cancelled);
   EXPECT_FALSE(r.converged);
   EXPECT_EQ(segment::euler_characteristic(r.mesh), 2);  // still a valid (small) balloon
@@ -287,9 +296,9 @@ TEST(Balloon, HonoursTheStopToken) {
 
 TEST(Balloon, RejectsAnInflationStepThatCouldJumpAWall) {
   const Prepared p = prepare("sphere", 48);
-  EXPECT_THROW(segment::inflate_balloon(p.smoothed, p.gradient, p.phantom.seed_mm,
-                                        {.inflation_vox = 0.9f}),
-               std::invalid_argument);
+  EXPECT_THROW(
+      segment::inflate_balloon(p.smoothed, p.gradient, p.phantom.seed_mm, {.inflation_vox = 0.9f}),
+      std::invalid_argument);
 }
 
 TEST(Balloon, RejectsASnapWindowBeyondEightVoxels) {
@@ -311,7 +320,8 @@ TEST(Balloon, SnapsStoppedVerticesOntoTheWallInsteadOfShortOfIt) {
     return static_cast<float>(sum / static_cast<double>(r.mesh.vertices.size()));
   };
   const auto snapped = segment::inflate_balloon(p.smoothed, p.gradient, p.phantom.seed_mm);
-  const auto unsnapped = segment::inflate_balloon(p.smoothed, p.gradient, p.phantom.seed_mm, {.snap_to_wall = false});
+  const auto unsnapped =
+      segment::inflate_balloon(p.smoothed, p.gradient, p.phantom.seed_mm, {.snap_to_wall = false});
   ASSERT_EQ(snapped.error, "");
   ASSERT_EQ(unsnapped.error, "");
   EXPECT_EQ(segment::euler_characteristic(snapped.mesh), 2);
@@ -324,8 +334,10 @@ TEST(Balloon, SerialAndParallelRunsAreIdentical) {
   // depend on which front marked A_t first. Marks are applied in vertex order after each
   // parallel step, so the thread count must not change a single vertex.
   const Prepared p = prepare("cyst-needle", 56);
-  const auto serial = segment::inflate_balloon(p.smoothed, p.gradient, p.phantom.seed_mm, {.threads = 1});
-  const auto parallel = segment::inflate_balloon(p.smoothed, p.gradient, p.phantom.seed_mm, {.threads = 2});
+  const auto serial =
+      segment::inflate_balloon(p.smoothed, p.gradient, p.phantom.seed_mm, {.threads = 1});
+  const auto parallel =
+      segment::inflate_balloon(p.smoothed, p.gradient, p.phantom.seed_mm, {.threads = 2});
   ASSERT_EQ(serial.error, "");
   EXPECT_GT(count(serial, StopReason::SelfIntersection), 0);
   EXPECT_EQ(serial.stats.iterations, parallel.stats.iterations);
@@ -341,7 +353,8 @@ TEST(Balloon, SerialAndParallelRunsAreIdentical) {
 TEST(Balloon, ALeakThroughAGapEndsWithAnErrorNotAHang) {
   // A bright shell (radius 9-12 voxels) around a dark inside, with a hole 12 voxels wide on +x
   // into the dark outside: the balloon escapes through it and would fill the volume.
-  volume::Volume image(Vec3i(48, 48, 48), Vec3f(1, 1, 1), Vec3f(0, 0, 0), volume::VoxelType::Float32);
+  volume::Volume image(Vec3i(48, 48, 48), Vec3f(1, 1, 1), Vec3f(0, 0, 0),
+                       volume::VoxelType::Float32);
   for (int k = 0; k < 48; ++k)
     for (int j = 0; j < 48; ++j)
       for (int i = 0; i < 48; ++i) {
@@ -355,8 +368,10 @@ TEST(Balloon, ALeakThroughAGapEndsWithAnErrorNotAHang) {
   // The default bound (the bounding box's whole area) would let it first spread over the volume
   // walls; a quarter of it is still four times this shell's area.
   const auto t0 = std::chrono::steady_clock::now();
-  const auto r = segment::inflate_balloon(smoothed, gradient, Vec3f(24, 24, 24), {.max_area_fraction = 0.25f});
-  const double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+  const auto r =
+      segment::inflate_balloon(smoothed, gradient, Vec3f(24, 24, 24), {.max_area_fraction = 0.25f});
+  const double ms =
+      std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
   EXPECT_TRUE(r.stats.leaked);
   EXPECT_NE(r.error.find("leaked"), std::string::npos) << r.error;
   EXPECT_TRUE(r.mesh.vertices.empty());
@@ -364,7 +379,8 @@ TEST(Balloon, ALeakThroughAGapEndsWithAnErrorNotAHang) {
 }
 
 TEST(Balloon, WorksOnAnisotropicSpacing) {
-  auto ph = sim::make_phantom({.phantom = "sphere", .size_vox = 56, .spacing_mm = {0.5f, 0.5f, 0.8f}, .seed = 5});
+  auto ph = sim::make_phantom(
+      {.phantom = "sphere", .size_vox = 56, .spacing_mm = {0.5f, 0.5f, 0.8f}, .seed = 5});
   const auto sm = volume::smooth_gaussian(ph.image, 0.6f);
   const auto g = volume::central_gradient(sm);
   const auto r = segment::inflate_balloon(sm, g, ph.seed_mm);
@@ -379,15 +395,19 @@ TEST(Balloon, WorksOnAnisotropicSpacing) {
 namespace {
 
 // A closed torus (genus 1) about the z axis through `centre`: `rings` x `sides` quads, split.
-segment::Mesh torus_mesh(const Vec3f& centre, float major_mm, float tube_mm, int rings = 96, int sides = 32) {
+segment::Mesh torus_mesh(const Vec3f& centre, float major_mm, float tube_mm, int rings = 96,
+                         int sides = 32) {
   segment::Mesh m;
   for (int i = 0; i < rings; ++i)
     for (int j = 0; j < sides; ++j) {
-      const float u = 2.0f * static_cast<float>(M_PI) * i / rings, w = 2.0f * static_cast<float>(M_PI) * j / sides;
+      const float u = 2.0f * static_cast<float>(M_PI) * i / rings,
+                  w = 2.0f * static_cast<float>(M_PI) * j / sides;
       const float r = major_mm + tube_mm * std::cos(w);
       m.vertices.push_back(centre + Vec3f(r * std::cos(u), r * std::sin(u), tube_mm * std::sin(w)));
     }
-  auto at = [&](int i, int j) { return static_cast<std::uint32_t>((i % rings) * sides + (j % sides)); };
+  auto at = [&](int i, int j) {
+    return static_cast<std::uint32_t>((i % rings) * sides + (j % sides));
+  };
   for (int i = 0; i < rings; ++i)
     for (int j = 0; j < sides; ++j) {  // counter-clockwise seen from outside
       m.triangles.push_back({at(i, j), at(i + 1, j), at(i + 1, j + 1)});
@@ -397,8 +417,8 @@ segment::Mesh torus_mesh(const Vec3f& centre, float major_mm, float tube_mm, int
 }
 
 // Mean and worst distance of the vertices from the torus's true tube wall, in voxels.
-std::pair<float, float> tube_wall_error_vox(const segment::Mesh& m, const Vec3f& centre, float major_mm,
-                                            float tube_mm, float vox_mm) {
+std::pair<float, float> tube_wall_error_vox(const segment::Mesh& m, const Vec3f& centre,
+                                            float major_mm, float tube_mm, float vox_mm) {
   double sum = 0.0;
   float worst = 0.0f;
   for (const auto& v : m.vertices) {
@@ -436,7 +456,8 @@ TEST(Reinflate, GivesAThinnedTorusBackItsWallAndKeepsItsGenus) {
 
   const auto second = segment::reinflate(p.smoothed, p.gradient, thinned, first.stats);
   ASSERT_EQ(second.mesh.vertices.size(), thinned.vertices.size());
-  EXPECT_EQ(second.mesh.triangles, thinned.triangles) << "connectivity, and with it the genus, stays";
+  EXPECT_EQ(second.mesh.triangles, thinned.triangles)
+      << "connectivity, and with it the genus, stays";
   EXPECT_EQ(segment::euler_characteristic(second.mesh), 0);
   const auto after = tube_wall_error_vox(second.mesh, t.centre, t.major_mm, t.tube_mm, p.vox_mm);
   EXPECT_NEAR(before.first, 1.0f, 0.05f);
@@ -444,7 +465,8 @@ TEST(Reinflate, GivesAThinnedTorusBackItsWallAndKeepsItsGenus) {
   EXPECT_LT(after.second, 1.6f) << "no vertex moved further than the bound (1.5 voxels)";
   float moved_most_vox = 0.0f;
   for (std::size_t i = 0; i < thinned.vertices.size(); ++i)
-    moved_most_vox = std::max(moved_most_vox, (second.mesh.vertices[i] - thinned.vertices[i]).norm() / p.vox_mm);
+    moved_most_vox =
+        std::max(moved_most_vox, (second.mesh.vertices[i] - thinned.vertices[i]).norm() / p.vox_mm);
   EXPECT_LE(moved_most_vox, 1.5f + 0.31f);  // the bound, plus the last step that reached it
   EXPECT_GE(second.stats.stop_counts[static_cast<std::size_t>(StopReason::Boundary)],
             static_cast<int>(0.9 * second.mesh.vertices.size()))
@@ -470,7 +492,8 @@ TEST(Reinflate, RefusesAnOpenSurface) {
   ASSERT_EQ(first.error, "");
   segment::Mesh open = first.mesh;
   open.triangles.pop_back();
-  EXPECT_THROW(segment::reinflate(p.smoothed, p.gradient, open, first.stats), std::invalid_argument);
+  EXPECT_THROW(segment::reinflate(p.smoothed, p.gradient, open, first.stats),
+               std::invalid_argument);
   EXPECT_THROW(segment::reinflate(p.smoothed, p.gradient, first.mesh, segment::BalloonStats{}),
                std::invalid_argument);
 }

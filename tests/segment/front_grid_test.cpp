@@ -1,11 +1,11 @@
 // FrontGrid (A_t): first mark wins, readers on several threads, sparse memory.
+#include "segment/internal/front_grid.h"
+
 #include <gtest/gtest.h>
 
 #include <atomic>
 #include <cmath>
 #include <thread>
-
-#include "segment/internal/front_grid.h"
 
 using namespace sonomesh::volume;
 using sonomesh::segment::internal::FrontGrid;

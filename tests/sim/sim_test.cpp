@@ -1,3 +1,5 @@
+#include "sim/sim.h"
+
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -10,7 +12,6 @@
 
 #include "sim/internal/shapes.h"
 #include "sim/internal/speckle.h"
-#include "sim/sim.h"
 #include "topology.h"
 
 namespace sonomesh::sim {
@@ -85,25 +86,25 @@ TEST(SimTopology, CystWithoutItsNeedleHasGenusZero) {
   EXPECT_LT(differ, with.image.u8().size() / 4);
 }
 
-INSTANTIATE_TEST_SUITE_P(
-    Phantoms, SimTruthTopology,
-    ::testing::Values(TopologyCase{"sphere", 48, Vec3f::UnitZ(), 0.0f},
-                      TopologyCase{"ellipsoid", 64, Vec3f(1, 1, 0), 0.0f},
-                      TopologyCase{"torus", 48, Vec3f::UnitZ(), 0.0f},
-                      TopologyCase{"torus", 64, Vec3f(1, 2, 3), 1.0f},
-                      TopologyCase{"cyst-needle", 48, Vec3f::UnitZ(), 0.0f},
-                      TopologyCase{"cyst-needle", 64, Vec3f::UnitZ(), 1.0f},
-                      TopologyCase{"cyst-needle", 96, Vec3f(0, 1, 1), 0.0f},
-                      TopologyCase{"double-torus", 48, Vec3f::UnitZ(), 3.0f},
-                      TopologyCase{"double-torus", 64, Vec3f::UnitZ(), 0.0f},
-                      TopologyCase{"double-torus", 64, Vec3f(1, 0, 1), 0.0f}),
-    [](const auto& info) {
-      std::string name = info.param.phantom + "_" + std::to_string(info.param.size) + "_" +
-                         std::to_string(info.index);
-      for (char& ch : name)
-        if (ch == '-') ch = '_';
-      return name;
-    });
+INSTANTIATE_TEST_SUITE_P(Phantoms, SimTruthTopology,
+                         ::testing::Values(TopologyCase{"sphere", 48, Vec3f::UnitZ(), 0.0f},
+                                           TopologyCase{"ellipsoid", 64, Vec3f(1, 1, 0), 0.0f},
+                                           TopologyCase{"torus", 48, Vec3f::UnitZ(), 0.0f},
+                                           TopologyCase{"torus", 64, Vec3f(1, 2, 3), 1.0f},
+                                           TopologyCase{"cyst-needle", 48, Vec3f::UnitZ(), 0.0f},
+                                           TopologyCase{"cyst-needle", 64, Vec3f::UnitZ(), 1.0f},
+                                           TopologyCase{"cyst-needle", 96, Vec3f(0, 1, 1), 0.0f},
+                                           TopologyCase{"double-torus", 48, Vec3f::UnitZ(), 3.0f},
+                                           TopologyCase{"double-torus", 64, Vec3f::UnitZ(), 0.0f},
+                                           TopologyCase{"double-torus", 64, Vec3f(1, 0, 1), 0.0f}),
+                         [](const auto& info) {
+                           std::string name = info.param.phantom + "_" +
+                                              std::to_string(info.param.size) + "_" +
+                                              std::to_string(info.index);
+                           for (char& ch : name)
+                             if (ch == '-') ch = '_';
+                           return name;
+                         });
 
 TEST(SimTopology, GenusFieldMatchesNames) {
   EXPECT_EQ(phantom_names().size(), 6u);
@@ -149,7 +150,8 @@ TEST(SimSeed, IsDeepInsideTheTarget) {
           if (di * di + dj * dj + dk * dk > r * r) continue;
           const Vec3i q = p.seed_index + Vec3i(di, dj, dk);
           ASSERT_EQ(p.truth.u8()[p.truth.linear_index(q.x(), q.y(), q.z())], 1)
-              << name << " seed " << p.seed_index.transpose() << " offset " << di << ',' << dj << ',' << dk;
+              << name << " seed " << p.seed_index.transpose() << " offset " << di << ',' << dj
+              << ',' << dk;
         }
   }
 }
@@ -224,7 +226,8 @@ struct Regions {
 Regions regions(const PhantomSpec& spec, const Phantom& p) {
   const internal::Shape shape(spec, p.image.origin_mm());
   const float vox = spec.spacing_mm.x();
-  Regions r{std::vector<std::uint8_t>(p.image.voxel_count()), std::vector<std::uint8_t>(p.image.voxel_count())};
+  Regions r{std::vector<std::uint8_t>(p.image.voxel_count()),
+            std::vector<std::uint8_t>(p.image.voxel_count())};
   const Vec3i d = p.image.dims();
   for (int k = 0; k < d.z(); ++k)
     for (int j = 0; j < d.y(); ++j)
@@ -374,7 +377,8 @@ TEST(SimImageModel, SpeckleZeroGivesAFlatTissue) {
   const Phantom p = make_phantom(s);
   EXPECT_EQ(p.image.u8()[0], 120);
   EXPECT_EQ(p.image.u8()[p.image.voxel_count() - 1], 120);
-  EXPECT_EQ(p.image.u8()[p.image.linear_index(p.seed_index.x(), p.seed_index.y(), p.seed_index.z())], 36);
+  EXPECT_EQ(
+      p.image.u8()[p.image.linear_index(p.seed_index.x(), p.seed_index.y(), p.seed_index.z())], 36);
 }
 
 // --- Breathing -----------------------------------------------------------------------------------
@@ -403,7 +407,7 @@ TEST(SimBreathing, TimeMovesTheTargetAndAPeriodBringsItBack) {
   EXPECT_LT(shift_vox, 5.0f);
   EXPECT_LT((centroid(back.truth) - centroid(rest.truth)).norm(), 0.1f);
   EXPECT_TRUE(moved.truth.u8()[moved.truth.linear_index(moved.seed_index.x(), moved.seed_index.y(),
-                                                         moved.seed_index.z())]);
+                                                        moved.seed_index.z())]);
 }
 
 TEST(SimBreathing, EveryPhantomStaysClearOfTheBorderAtItsExtremes) {
@@ -486,7 +490,8 @@ struct CommandResult {
 
 CommandResult run(const std::string& args, const std::filesystem::path& dir) {
   const auto err_path = dir / "stderr.txt";
-  const std::string cmd = std::string(PROBE_SIM_EXE) + " " + args + " 2>" + err_path.string() + " >/dev/null";
+  const std::string cmd =
+      std::string(PROBE_SIM_EXE) + " " + args + " 2>" + err_path.string() + " >/dev/null";
   const int status = std::system(cmd.c_str());
   std::ifstream f(err_path);
   std::stringstream ss;
@@ -508,8 +513,8 @@ class ProbeSimCli : public ::testing::Test {
 
 TEST_F(ProbeSimCli, GenerateWritesVolumeTruthAndSidecar) {
   const auto vol = dir_ / "torus.nrrd", truth = dir_ / "torus_truth.mha";
-  const auto r = run("generate --phantom torus --size 48 --seed 5 --spacing 0.4 --out " + vol.string() +
-                         " --truth " + truth.string(),
+  const auto r = run("generate --phantom torus --size 48 --seed 5 --spacing 0.4 --out " +
+                         vol.string() + " --truth " + truth.string(),
                      dir_);
   ASSERT_EQ(r.status, 0) << r.err;
   ASSERT_TRUE(std::filesystem::exists(vol));
@@ -542,9 +547,10 @@ TEST_F(ProbeSimCli, GenerateWritesVolumeTruthAndSidecar) {
 
 TEST_F(ProbeSimCli, GenerateEchoUsesThePresetUnlessTold) {
   const auto vol = dir_ / "lv.nrrd", truth = dir_ / "lv_truth.nrrd";
-  const auto r = run("generate --phantom lv --size 48 --realism echo --contrast 0.4 --speckle-mm 0.8 --out " +
-                         vol.string() + " --truth " + truth.string(),
-                     dir_);
+  const auto r =
+      run("generate --phantom lv --size 48 --realism echo --contrast 0.4 --speckle-mm 0.8 --out " +
+              vol.string() + " --truth " + truth.string(),
+          dir_);
   ASSERT_EQ(r.status, 0) << r.err;
   std::ifstream js(dir_ / "lv.json");
   const auto j = nlohmann::json::parse(js);
@@ -560,8 +566,8 @@ TEST_F(ProbeSimCli, GenerateEchoUsesThePresetUnlessTold) {
   ASSERT_TRUE(back) << back.error->message;
   EXPECT_EQ(back.volume.u8(), make_phantom(s).image.u8());
   // An explicit --speckle wins over the preset.
-  const auto r2 = run("generate --phantom lv --size 48 --realism echo --speckle 0.5 --out " + vol.string() +
-                          " --truth " + truth.string(),
+  const auto r2 = run("generate --phantom lv --size 48 --realism echo --speckle 0.5 --out " +
+                          vol.string() + " --truth " + truth.string(),
                       dir_);
   ASSERT_EQ(r2.status, 0) << r2.err;
   std::ifstream js2(dir_ / "lv.json");
@@ -569,12 +575,14 @@ TEST_F(ProbeSimCli, GenerateEchoUsesThePresetUnlessTold) {
 }
 
 TEST_F(ProbeSimCli, BadArgumentsGiveOneLineAndNonZeroExit) {
-  const std::string files = " --out " + (dir_ / "a.nrrd").string() + " --truth " + (dir_ / "b.nrrd").string();
+  const std::string files =
+      " --out " + (dir_ / "a.nrrd").string() + " --truth " + (dir_ / "b.nrrd").string();
   for (const std::string& args :
-       {std::string("generate --phantom cube") + files, std::string("generate --phantom sphere --size 4") + files,
+       {std::string("generate --phantom cube") + files,
+        std::string("generate --phantom sphere --size 4") + files,
         std::string("generate --phantom sphere --spacing 1,2") + files,
-        std::string("generate --phantom sphere --out x.png --truth y.nrrd"), std::string("generate"),
-        std::string("generate --phantom lv --realism photo") + files,
+        std::string("generate --phantom sphere --out x.png --truth y.nrrd"),
+        std::string("generate"), std::string("generate --phantom lv --realism photo") + files,
         std::string("generate --phantom lv --realism echo --speckle-mm 0") + files,
         std::string("bogus")}) {
     const auto r = run(args, dir_);

@@ -31,9 +31,7 @@ inline SolidTopology solid_topology(const volume::Volume& labels) {
   // Cells of the complex on the vertex lattice (nx+1)(ny+1)(nz+1); a cell is in the complex if any
   // voxel containing it is on. Cell type by which axes it spans.
   const int vx = nx + 1, vy = ny + 1, vz = nz + 1;
-  auto vid = [&](int i, int j, int k) {
-    return (static_cast<std::size_t>(k) * vy + j) * vx + i;
-  };
+  auto vid = [&](int i, int j, int k) { return (static_cast<std::size_t>(k) * vy + j) * vx + i; };
   const std::size_t nv = static_cast<std::size_t>(vx) * vy * vz;
   // mask bits: 0 vertex, 1..3 edges along x/y/z, 4..6 faces normal to x/y/z.
   std::vector<std::uint8_t> mask(nv, 0);
@@ -46,13 +44,13 @@ inline SolidTopology solid_topology(const volume::Volume& labels) {
         ++cubes;
         for (int c = 0; c < 8; ++c) {
           const int di = c & 1, dj = (c >> 1) & 1, dk = (c >> 2) & 1;
-          std::uint8_t bits = 1;                     // vertex
-          if (di == 0) bits |= 2;                    // x-edge starting here
-          if (dj == 0) bits |= 4;                    // y-edge
-          if (dk == 0) bits |= 8;                    // z-edge
-          if (dj == 0 && dk == 0) bits |= 16;        // face spanning y,z (normal x)
-          if (di == 0 && dk == 0) bits |= 32;        // face normal y
-          if (di == 0 && dj == 0) bits |= 64;        // face normal z
+          std::uint8_t bits = 1;               // vertex
+          if (di == 0) bits |= 2;              // x-edge starting here
+          if (dj == 0) bits |= 4;              // y-edge
+          if (dk == 0) bits |= 8;              // z-edge
+          if (dj == 0 && dk == 0) bits |= 16;  // face spanning y,z (normal x)
+          if (di == 0 && dk == 0) bits |= 32;  // face normal y
+          if (di == 0 && dj == 0) bits |= 64;  // face normal z
           mask[vid(i + di, j + dj, k + dk)] |= bits;
         }
       }
@@ -104,7 +102,8 @@ inline SolidTopology solid_topology(const volume::Volume& labels) {
         while (!q.empty()) {
           const auto [a, b, c] = q.front();
           q.pop();
-          const int nb[6][3] = {{1, 0, 0}, {-1, 0, 0}, {0, 1, 0}, {0, -1, 0}, {0, 0, 1}, {0, 0, -1}};
+          const int nb[6][3] = {{1, 0, 0},  {-1, 0, 0}, {0, 1, 0},
+                                {0, -1, 0}, {0, 0, 1},  {0, 0, -1}};
           for (const auto& d : nb) {
             const int x = a + d[0], y = b + d[1], z = c + d[2];
             if (x < 0 || y < 0 || z < 0 || x >= px || y >= py || z >= pz) continue;

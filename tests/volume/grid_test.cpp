@@ -1,11 +1,10 @@
 // write_vdb.
 #include <gtest/gtest.h>
+#include <openvdb/io/File.h>
+#include <openvdb/openvdb.h>
 
 #include <cmath>
 #include <filesystem>
-
-#include <openvdb/io/File.h>
-#include <openvdb/openvdb.h>
 
 #include "volume/volume.h"
 

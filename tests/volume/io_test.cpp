@@ -1,17 +1,16 @@
 // NRRD and MetaImage reading/writing: round trips, hand-written headers, malformed files.
 #include <gtest/gtest.h>
-
 #include <unistd.h>
 #include <zlib.h>
 
+#include <atomic>
 #include <chrono>
 #include <filesystem>
 #include <fstream>
 #include <random>
 #include <sstream>
-#include <thread>
-#include <atomic>
 #include <string>
+#include <thread>
 #include <tuple>
 
 #include "volume/volume.h"
@@ -29,7 +28,8 @@ class TempDir {
     std::string name = std::string(info->test_suite_name()) + "_" + info->name();
     for (char& c : name)
       if (c == '/') c = '_';
-    path_ = fs::temp_directory_path() / ("sonomesh_volume_io_" + name + "_" + std::to_string(::getpid()));
+    path_ = fs::temp_directory_path() /
+            ("sonomesh_volume_io_" + name + "_" + std::to_string(::getpid()));
     fs::remove_all(path_);
     fs::create_directories(path_);
   }
@@ -45,9 +45,15 @@ Volume random_volume(VoxelType type) {
   std::mt19937 rng(11);
   for (std::size_t i = 0; i < v.voxel_count(); ++i) {
     switch (type) {
-      case VoxelType::UInt8: v.u8()[i] = static_cast<std::uint8_t>(rng()); break;
-      case VoxelType::UInt16: v.u16()[i] = static_cast<std::uint16_t>(rng()); break;
-      case VoxelType::Float32: v.f32()[i] = static_cast<float>(rng() % 100000) / 7.0f - 5000.0f; break;
+      case VoxelType::UInt8:
+        v.u8()[i] = static_cast<std::uint8_t>(rng());
+        break;
+      case VoxelType::UInt16:
+        v.u16()[i] = static_cast<std::uint16_t>(rng());
+        break;
+      case VoxelType::Float32:
+        v.f32()[i] = static_cast<float>(rng() % 100000) / 7.0f - 5000.0f;
+        break;
     }
   }
   return v;
@@ -56,9 +62,12 @@ Volume random_volume(VoxelType type) {
 bool same_voxels(const Volume& a, const Volume& b) {
   if (a.type() != b.type() || a.dims() != b.dims()) return false;
   switch (a.type()) {
-    case VoxelType::UInt8: return a.u8() == b.u8();
-    case VoxelType::UInt16: return a.u16() == b.u16();
-    case VoxelType::Float32: return a.f32() == b.f32();
+    case VoxelType::UInt8:
+      return a.u8() == b.u8();
+    case VoxelType::UInt16:
+      return a.u16() == b.u16();
+    case VoxelType::Float32:
+      return a.f32() == b.f32();
   }
   return false;
 }
@@ -107,7 +116,8 @@ const char* ext_name(const std::string& e) { return e.c_str() + 1; }
 // ---------------------------------------------------------------------------------------------
 // Round trips: every format x voxel type x compression.
 
-class RoundTrip : public ::testing::TestWithParam<std::tuple<std::string, VoxelType, Compression>> {};
+class RoundTrip : public ::testing::TestWithParam<std::tuple<std::string, VoxelType, Compression>> {
+};
 
 TEST_P(RoundTrip, PreservesVoxelsAndGeometry) {
   const auto& [ext, type, compression] = GetParam();
@@ -146,12 +156,13 @@ TEST_P(RoundTrip, PreservesVoxelsAndGeometry) {
 
 INSTANTIATE_TEST_SUITE_P(
     AllFormats, RoundTrip,
-    ::testing::Combine(::testing::Values(std::string(".nrrd"), std::string(".nhdr"), std::string(".mha"),
-                                         std::string(".mhd")),
+    ::testing::Combine(::testing::Values(std::string(".nrrd"), std::string(".nhdr"),
+                                         std::string(".mha"), std::string(".mhd")),
                        ::testing::Values(VoxelType::UInt8, VoxelType::UInt16, VoxelType::Float32),
                        ::testing::Values(Compression::Raw, Compression::Gzip)),
     [](const auto& info) {
-      return std::string(ext_name(std::get<0>(info.param))) + "_" + to_string(std::get<1>(info.param)) +
+      return std::string(ext_name(std::get<0>(info.param))) + "_" +
+             to_string(std::get<1>(info.param)) +
              (std::get<2>(info.param) == Compression::Gzip ? "_gzip" : "_raw");
     });
 
@@ -161,7 +172,8 @@ TEST(NrrdWrite, HeaderCarriesLpsSpaceDirectionsAndOrigin) {
   ASSERT_FALSE(write_volume(v, dir / "h.nhdr").has_value());
   const std::string header = read_file(dir / "h.nhdr");
   EXPECT_NE(header.find("space: left-posterior-superior"), std::string::npos) << header;
-  EXPECT_NE(header.find("space directions: (0.5,0,0) (0,0.75,0) (0,0,1.25)"), std::string::npos) << header;
+  EXPECT_NE(header.find("space directions: (0.5,0,0) (0,0.75,0) (0,0,1.25)"), std::string::npos)
+      << header;
   EXPECT_NE(header.find("space origin: (-3,4.5,10.25)"), std::string::npos) << header;
   EXPECT_NE(header.find("sizes: 13 11 7"), std::string::npos) << header;
 }
@@ -178,26 +190,30 @@ int file_value(int i, int j, int k) { return i + kNx * j + kNx * kNy * k; }
 std::string mha_header(const std::string& matrix, const std::string& extra = "",
                        const std::string& type = "MET_UCHAR", const std::string& dims = "3 2 2",
                        const std::string& data_file = "LOCAL") {
-  return "ObjectType = Image\nNDims = 3\nBinaryData = True\nBinaryDataByteOrderMSB = False\n" + extra +
-         "TransformMatrix = " + matrix + "\nOffset = 10 20 30\nElementSpacing = 1 2 3\nDimSize = " + dims +
+  return "ObjectType = Image\nNDims = 3\nBinaryData = True\nBinaryDataByteOrderMSB = False\n" +
+         extra + "TransformMatrix = " + matrix +
+         "\nOffset = 10 20 30\nElementSpacing = 1 2 3\nDimSize = " + dims +
          "\nElementType = " + type + "\nElementDataFile = " + data_file + "\n";
 }
 
 std::string nrrd_header(const std::string& directions, const std::string& extra = "",
                         const std::string& type = "uint8", const std::string& sizes = "3 2 2") {
-  return "NRRD0004\ntype: " + type + "\ndimension: 3\nspace: left-posterior-superior\nsizes: " + sizes +
-         "\nspace directions: " + directions + "\nkinds: domain domain domain\nendian: little\n" + extra +
-         "space origin: (10,20,30)\n";
+  return "NRRD0004\ntype: " + type +
+         "\ndimension: 3\nspace: left-posterior-superior\nsizes: " + sizes +
+         "\nspace directions: " + directions + "\nkinds: domain domain domain\nendian: little\n" +
+         extra + "space origin: (10,20,30)\n";
 }
 
 // Every file voxel must be found at its physical position in the loaded volume.
-void expect_matches_file_geometry(const Volume& v, const Vec3f& file_origin, const Vec3f& axis_sign) {
+void expect_matches_file_geometry(const Volume& v, const Vec3f& file_origin,
+                                  const Vec3f& axis_sign) {
   ASSERT_EQ(v.dims(), Vec3i(kNx, kNy, kNz));
   EXPECT_TRUE(v.spacing_mm().isApprox(Vec3f(1, 2, 3)));
   for (int k = 0; k < kNz; ++k)
     for (int j = 0; j < kNy; ++j)
       for (int i = 0; i < kNx; ++i) {
-        const Vec3f p = file_origin + axis_sign.cwiseProduct(Vec3f(1, 2, 3)).cwiseProduct(Vec3f(i, j, k));
+        const Vec3f p =
+            file_origin + axis_sign.cwiseProduct(Vec3f(1, 2, 3)).cwiseProduct(Vec3f(i, j, k));
         EXPECT_FLOAT_EQ(sample_mm(v, p), static_cast<float>(file_value(i, j, k))) << i << j << k;
       }
 }
@@ -238,7 +254,8 @@ void expect_world_positions(const Volume& v, const Vec3f& origin, const Mat3f& a
         EXPECT_EQ(v.value(i, j, k), file_value(i, j, k));
         const Vec3f world = v.grid_to_world_mm(v.index_to_mm(Vec3f(i, j, k)));
         const Vec3f expected = origin + axes_times_spacing * Vec3f(i, j, k);
-        EXPECT_LT((world - expected).norm(), 1e-4f) << world.transpose() << " vs " << expected.transpose();
+        EXPECT_LT((world - expected).norm(), 1e-4f)
+            << world.transpose() << " vs " << expected.transpose();
       }
 }
 
@@ -246,7 +263,8 @@ TEST(MetaImageOrientation, ObliqueAndPermutedMatricesAreKeptAsDirection) {
   TempDir dir;
   const auto path = dir / "oblique.mha";
   const float h = 0.70710678f;
-  write_file(path, mha_header("0.70710678 0.70710678 0 -0.70710678 0.70710678 0 0 0 1") + bytes_0_to(12));
+  write_file(path,
+             mha_header("0.70710678 0.70710678 0 -0.70710678 0.70710678 0 0 0 1") + bytes_0_to(12));
   auto r = read_volume(path);
   ASSERT_TRUE(r) << r.error->message;
   Mat3f axes;  // columns: axis directions times ElementSpacing (1 2 3)
@@ -295,14 +313,16 @@ TEST(NrrdOrientation, RasSpaceIsConvertedToLps) {
 TEST(NrrdOrientation, ObliqueDirectionsAreKeptAndShearIsRefused) {
   TempDir dir;
   const auto path = dir / "oblique.nrrd";
-  write_file(path, nrrd_header("(0.8,0.6,0) (-1.2,1.6,0) (0,0,3)") + "encoding: raw\n\n" + bytes_0_to(12));
+  write_file(
+      path, nrrd_header("(0.8,0.6,0) (-1.2,1.6,0) (0,0,3)") + "encoding: raw\n\n" + bytes_0_to(12));
   const auto r = read_volume(path);
   ASSERT_TRUE(r) << r.error->message;
   Mat3f axes;
   axes << 0.8f, -1.2f, 0, 0.6f, 1.6f, 0, 0, 0, 3;
   expect_world_positions(r.volume, Vec3f(10, 20, 30), axes);
   EXPECT_TRUE(r.volume.spacing_mm().isApprox(Vec3f(1, 2, 3)));
-  write_file(path, nrrd_header("(0.8,0.6,0) (1.2,1.6,0) (0,0,3)") + "encoding: raw\n\n" + bytes_0_to(12));
+  write_file(path,
+             nrrd_header("(0.8,0.6,0) (1.2,1.6,0) (0,0,3)") + "encoding: raw\n\n" + bytes_0_to(12));
   expect_error(path, Code::UnsupportedOrientation);
   write_file(path, nrrd_header("(1,0,0) (2,0,0) (0,0,3)") + "encoding: raw\n\n" + bytes_0_to(12));
   expect_error(path, Code::UnsupportedOrientation);
@@ -315,8 +335,9 @@ TEST(NrrdRead, DetachedHeaderWithGzipDataAndPlainSpacings) {
   gzFile gz = gzopen((dir / "d.raw.gz").c_str(), "wb");
   gzwrite(gz, data.data(), static_cast<unsigned>(data.size()));
   gzclose(gz);
-  write_file(dir / "d.nhdr", "NRRD0004\ntype: unsigned char\ndimension: 3\nsizes: 3 2 2\n"
-                             "spacings: 1 2 3\nencoding: gzip\ndata file: d.raw.gz\n");
+  write_file(dir / "d.nhdr",
+             "NRRD0004\ntype: unsigned char\ndimension: 3\nsizes: 3 2 2\n"
+             "spacings: 1 2 3\nencoding: gzip\ndata file: d.raw.gz\n");
   const auto r = read_volume(dir / "d.nhdr");
   ASSERT_TRUE(r) << r.error->message;
   EXPECT_TRUE(r.volume.origin_mm().isApprox(Vec3f(0, 0, 0)));
@@ -332,8 +353,10 @@ TEST(MetaImageRead, DetachedRawAndZlibAttachedAndBigEndianAndShortConversion) {
   expect_matches_file_geometry(r.volume, Vec3f(10, 20, 30), Vec3f(1, 1, 1));
 
   const std::string z = zlib_compress(bytes_0_to(12));
-  write_file(dir / "z.mha", mha_header("1 0 0 0 1 0 0 0 1", "CompressedData = True\nCompressedDataSize = " +
-                                                              std::to_string(z.size()) + "\n") + z);
+  write_file(dir / "z.mha",
+             mha_header("1 0 0 0 1 0 0 0 1", "CompressedData = True\nCompressedDataSize = " +
+                                                 std::to_string(z.size()) + "\n") +
+                 z);
   const auto rz = read_volume(dir / "z.mha");
   ASSERT_TRUE(rz) << rz.error->message;
   expect_matches_file_geometry(rz.volume, Vec3f(10, 20, 30), Vec3f(1, 1, 1));
@@ -447,13 +470,15 @@ TEST(Malformed, SizesThatDoNotMatch) {
   write_file(dir / "big.raw", bytes_0_to(20));
   write_file(dir / "big.mhd", mha_header("1 0 0 0 1 0 0 0 1", "", "MET_UCHAR", "3 2 2", "big.raw"));
   expect_error(dir / "big.mhd", Code::SizeMismatch);
-  write_file(dir / "big.nhdr", nrrd_header("(1,0,0) (0,2,0) (0,0,3)") + "encoding: raw\ndata file: big.raw\n");
+  write_file(dir / "big.nhdr",
+             nrrd_header("(1,0,0) (0,2,0) (0,0,3)") + "encoding: raw\ndata file: big.raw\n");
   expect_error(dir / "big.nhdr", Code::SizeMismatch);
   // Attached data with trailing bytes.
   write_file(dir / "big.mha", mha_header("1 0 0 0 1 0 0 0 1") + bytes_0_to(13));
   expect_error(dir / "big.mha", Code::SizeMismatch);
   // DimSize with two values for NDims 3.
-  write_file(dir / "dims.mha", mha_header("1 0 0 0 1 0 0 0 1", "", "MET_UCHAR", "3 4") + bytes_0_to(12));
+  write_file(dir / "dims.mha",
+             mha_header("1 0 0 0 1 0 0 0 1", "", "MET_UCHAR", "3 4") + bytes_0_to(12));
   expect_error(dir / "dims.mha", Code::SizeMismatch);
   // A zlib stream holding more voxels than announced.
   const std::string z = zlib_compress(bytes_0_to(24));
@@ -465,50 +490,61 @@ TEST(Malformed, UnknownVoxelTypes) {
   TempDir dir;
   write_file(dir / "t.mha", mha_header("1 0 0 0 1 0 0 0 1", "", "MET_FOO") + bytes_0_to(12));
   expect_error(dir / "t.mha", Code::UnsupportedType);
-  write_file(dir / "t.nrrd", nrrd_header("(1,0,0) (0,2,0) (0,0,3)", "", "quaternion") + "encoding: raw\n\n" +
-                                 bytes_0_to(12));
+  write_file(dir / "t.nrrd", nrrd_header("(1,0,0) (0,2,0) (0,0,3)", "", "quaternion") +
+                                 "encoding: raw\n\n" + bytes_0_to(12));
   expect_error(dir / "t.nrrd", Code::UnsupportedType);
-  write_file(dir / "rgb.mha", mha_header("1 0 0 0 1 0 0 0 1", "ElementNumberOfChannels = 3\n") + bytes_0_to(36));
+  write_file(dir / "rgb.mha",
+             mha_header("1 0 0 0 1 0 0 0 1", "ElementNumberOfChannels = 3\n") + bytes_0_to(36));
   expect_error(dir / "rgb.mha", Code::UnsupportedType);
 }
 
 TEST(Malformed, AbsurdDimensionsFailBeforeAllocating) {
   TempDir dir;
   // 10^15 voxels: over the voxel limit.
-  write_file(dir / "huge.mha", mha_header("1 0 0 0 1 0 0 0 1", "", "MET_FLOAT", "100000 100000 100000") +
-                                   bytes_0_to(12));
-  write_file(dir / "huge.nrrd", nrrd_header("(1,0,0) (0,2,0) (0,0,3)", "", "float", "100000 100000 100000") +
-                                    "encoding: raw\n\n" + bytes_0_to(12));
+  write_file(
+      dir / "huge.mha",
+      mha_header("1 0 0 0 1 0 0 0 1", "", "MET_FLOAT", "100000 100000 100000") + bytes_0_to(12));
+  write_file(dir / "huge.nrrd",
+             nrrd_header("(1,0,0) (0,2,0) (0,0,3)", "", "float", "100000 100000 100000") +
+                 "encoding: raw\n\n" + bytes_0_to(12));
   const auto t0 = std::chrono::steady_clock::now();
   expect_error(dir / "huge.mha", Code::BadDimensions);
   expect_error(dir / "huge.nrrd", Code::BadDimensions);
   // 10^9 voxels is within the default limit, but the file holds 12 bytes: refused from the file
   // size, again before any allocation.
-  write_file(dir / "big.mha", mha_header("1 0 0 0 1 0 0 0 1", "", "MET_UCHAR", "1000 1000 1000") + bytes_0_to(12));
-  write_file(dir / "big.nrrd", nrrd_header("(1,0,0) (0,2,0) (0,0,3)", "", "uint8", "1000 1000 1000") +
-                                   "encoding: raw\n\n" + bytes_0_to(12));
-  write_file(dir / "bigz.mha", mha_header("1 0 0 0 1 0 0 0 1", "CompressedData = True\n", "MET_UCHAR",
-                                          "1000 1000 1000") + zlib_compress(bytes_0_to(12)));
+  write_file(dir / "big.mha",
+             mha_header("1 0 0 0 1 0 0 0 1", "", "MET_UCHAR", "1000 1000 1000") + bytes_0_to(12));
+  write_file(dir / "big.nrrd",
+             nrrd_header("(1,0,0) (0,2,0) (0,0,3)", "", "uint8", "1000 1000 1000") +
+                 "encoding: raw\n\n" + bytes_0_to(12));
+  write_file(dir / "bigz.mha", mha_header("1 0 0 0 1 0 0 0 1", "CompressedData = True\n",
+                                          "MET_UCHAR", "1000 1000 1000") +
+                                   zlib_compress(bytes_0_to(12)));
   expect_error(dir / "big.mha", Code::TruncatedData);
   expect_error(dir / "big.nrrd", Code::TruncatedData);
   expect_error(dir / "bigz.mha", Code::TruncatedData);
   // Allocating and filling gigabytes would take far longer than this.
   EXPECT_LT(std::chrono::steady_clock::now() - t0, std::chrono::seconds(2));
   // Non-positive and overflowing sizes; a custom lower limit.
-  write_file(dir / "neg.mha", mha_header("1 0 0 0 1 0 0 0 1", "", "MET_UCHAR", "3 -2 2") + bytes_0_to(12));
+  write_file(dir / "neg.mha",
+             mha_header("1 0 0 0 1 0 0 0 1", "", "MET_UCHAR", "3 -2 2") + bytes_0_to(12));
   expect_error(dir / "neg.mha", Code::BadDimensions);
-  write_file(dir / "zero.nrrd", nrrd_header("(1,0,0) (0,2,0) (0,0,3)", "", "uint8", "3 0 2") + "encoding: raw\n\n");
+  write_file(dir / "zero.nrrd",
+             nrrd_header("(1,0,0) (0,2,0) (0,0,3)", "", "uint8", "3 0 2") + "encoding: raw\n\n");
   const auto rz = read_volume(dir / "zero.nrrd");
   EXPECT_FALSE(rz);
-  write_file(dir / "ovf.mha", mha_header("1 0 0 0 1 0 0 0 1", "", "MET_UCHAR", "4294967296 4294967296 4294967296") +
-                                  bytes_0_to(12));
+  write_file(dir / "ovf.mha",
+             mha_header("1 0 0 0 1 0 0 0 1", "", "MET_UCHAR", "4294967296 4294967296 4294967296") +
+                 bytes_0_to(12));
   expect_error(dir / "ovf.mha", Code::BadDimensions);
   write_file(dir / "ok.mha", mha_header("1 0 0 0 1 0 0 0 1") + bytes_0_to(12));
   ReadOptions tight;
   tight.max_voxels = 11;
   expect_error(dir / "ok.mha", Code::BadDimensions, tight);
-  write_file(dir / "twod.mha", "ObjectType = Image\nNDims = 2\nDimSize = 3 4\nElementType = MET_UCHAR\n"
-                               "ElementDataFile = LOCAL\n" + bytes_0_to(12));
+  write_file(dir / "twod.mha",
+             "ObjectType = Image\nNDims = 2\nDimSize = 3 4\nElementType = MET_UCHAR\n"
+             "ElementDataFile = LOCAL\n" +
+                 bytes_0_to(12));
   expect_error(dir / "twod.mha", Code::BadDimensions);
 }
 
@@ -516,7 +552,8 @@ TEST(Malformed, MissingDetachedDataFile) {
   TempDir dir;
   write_file(dir / "m.mhd", mha_header("1 0 0 0 1 0 0 0 1", "", "MET_UCHAR", "3 2 2", "gone.raw"));
   expect_error(dir / "m.mhd", Code::NotFound);
-  write_file(dir / "m.nhdr", nrrd_header("(1,0,0) (0,2,0) (0,0,3)") + "encoding: raw\ndata file: gone.raw\n");
+  write_file(dir / "m.nhdr",
+             nrrd_header("(1,0,0) (0,2,0) (0,0,3)") + "encoding: raw\ndata file: gone.raw\n");
   expect_error(dir / "m.nhdr", Code::NotFound);
 }
 
@@ -527,31 +564,39 @@ TEST(Malformed, CorruptCompressedData) {
   for (char& c : junk) c = static_cast<char>(rng());
   write_file(dir / "bad.mha", mha_header("1 0 0 0 1 0 0 0 1", "CompressedData = True\n") + junk);
   expect_error(dir / "bad.mha", Code::Compression);
-  write_file(dir / "bad.nrrd", nrrd_header("(1,0,0) (0,2,0) (0,0,3)") + "encoding: gzip\n\n" + junk);
+  write_file(dir / "bad.nrrd",
+             nrrd_header("(1,0,0) (0,2,0) (0,0,3)") + "encoding: gzip\n\n" + junk);
   expect_error(dir / "bad.nrrd", Code::Compression);
   // A valid gzip header followed by garbage.
   std::string gz_head = "\x1f\x8b\x08\x00\x00\x00\x00\x00\x00\x03";
-  write_file(dir / "bad2.nrrd", nrrd_header("(1,0,0) (0,2,0) (0,0,3)") + "encoding: gzip\n\n" + gz_head + junk);
+  write_file(dir / "bad2.nrrd",
+             nrrd_header("(1,0,0) (0,2,0) (0,0,3)") + "encoding: gzip\n\n" + gz_head + junk);
   expect_error(dir / "bad2.nrrd", Code::Compression);
 }
 
 TEST(Malformed, BadHeaders) {
   TempDir dir;
-  write_file(dir / "nodims.mha", "ObjectType = Image\nNDims = 3\nElementType = MET_UCHAR\nElementDataFile = LOCAL\n");
+  write_file(dir / "nodims.mha",
+             "ObjectType = Image\nNDims = 3\nElementType = MET_UCHAR\nElementDataFile = LOCAL\n");
   expect_error(dir / "nodims.mha", Code::BadHeader);
   write_file(dir / "noend.mha", "ObjectType = Image\nNDims = 3\nDimSize = 3 2 2\n");
   expect_error(dir / "noend.mha", Code::BadHeader);
-  write_file(dir / "text.mha", mha_header("1 0 0 0 1 0 0 0 1", "", "MET_UCHAR", "3 x 2") + bytes_0_to(12));
+  write_file(dir / "text.mha",
+             mha_header("1 0 0 0 1 0 0 0 1", "", "MET_UCHAR", "3 x 2") + bytes_0_to(12));
   expect_error(dir / "text.mha", Code::BadHeader);
-  write_file(dir / "sp.mha", "ObjectType = Image\nNDims = 3\nDimSize = 3 2 2\nElementSpacing = 1 0 1\n"
-                             "ElementType = MET_UCHAR\nElementDataFile = LOCAL\n" + bytes_0_to(12));
+  write_file(dir / "sp.mha",
+             "ObjectType = Image\nNDims = 3\nDimSize = 3 2 2\nElementSpacing = 1 0 1\n"
+             "ElementType = MET_UCHAR\nElementDataFile = LOCAL\n" +
+                 bytes_0_to(12));
   expect_error(dir / "sp.mha", Code::BadHeader);
-  write_file(dir / "bad.nrrd", "NRRD0004\ntype: uint8\ndimension: 3\nsizes: 3 2\nencoding: raw\n\n" + bytes_0_to(12));
+  write_file(dir / "bad.nrrd",
+             "NRRD0004\ntype: uint8\ndimension: 3\nsizes: 3 2\nencoding: raw\n\n" + bytes_0_to(12));
   const auto r = read_volume(dir / "bad.nrrd");
   ASSERT_FALSE(r);
   EXPECT_EQ(r.error->message.find('\n'), std::string::npos);
-  write_file(dir / "fourd.nrrd", "NRRD0004\ntype: uint8\ndimension: 4\nsizes: 3 2 2 1\nencoding: raw\n\n" +
-                                     bytes_0_to(12));
+  write_file(
+      dir / "fourd.nrrd",
+      "NRRD0004\ntype: uint8\ndimension: 4\nsizes: 3 2 2 1\nencoding: raw\n\n" + bytes_0_to(12));
   expect_error(dir / "fourd.nrrd", Code::BadDimensions);
 }
 
@@ -573,9 +618,11 @@ TEST(Write, ErrorsAreValues) {
 
 TEST(Malformed, OutOfRangeGeometryIsBadHeader) {
   TempDir dir;
-  write_file(dir / "sp.nrrd", nrrd_header("(1e300,0,0) (0,2,0) (0,0,3)") + "encoding: raw\n\n" + bytes_0_to(12));
+  write_file(dir / "sp.nrrd",
+             nrrd_header("(1e300,0,0) (0,2,0) (0,0,3)") + "encoding: raw\n\n" + bytes_0_to(12));
   expect_error(dir / "sp.nrrd", Code::BadHeader);
-  write_file(dir / "tiny.nrrd", nrrd_header("(1e-300,0,0) (0,2,0) (0,0,3)") + "encoding: raw\n\n" + bytes_0_to(12));
+  write_file(dir / "tiny.nrrd",
+             nrrd_header("(1e-300,0,0) (0,2,0) (0,0,3)") + "encoding: raw\n\n" + bytes_0_to(12));
   expect_error(dir / "tiny.nrrd", Code::BadHeader);
   std::string h = mha_header("1 0 0 0 1 0 0 0 1") + bytes_0_to(12);
   h.replace(h.find("Offset = 10 20 30"), 17, "Offset = 1e300 0 0");
@@ -600,8 +647,10 @@ TEST(Malformed, EveryTruncationAndHeaderMutationIsHandled) {
       const fs::path cut = dir / ("cut_" + name);
       // Every cut inside the header and just after it, then random cuts in the data.
       std::vector<std::size_t> lengths;
-      for (std::size_t len = 0; len < std::min(good.size(), header_end + 24); ++len) lengths.push_back(len);
-      for (int n = 0; n < 20; ++n) lengths.push_back(header_end + rng() % (good.size() - header_end));
+      for (std::size_t len = 0; len < std::min(good.size(), header_end + 24); ++len)
+        lengths.push_back(len);
+      for (int n = 0; n < 20; ++n)
+        lengths.push_back(header_end + rng() % (good.size() - header_end));
       for (const std::size_t len : lengths) {
         write_file(cut, good.substr(0, len));
         const auto r = read_volume(cut);

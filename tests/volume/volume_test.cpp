@@ -1,4 +1,6 @@
 // Volume type, smoothing, gradients and sampling.
+#include "volume/volume.h"
+
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -6,12 +8,11 @@
 #include <random>
 #include <vector>
 
-#include "volume/volume.h"
-
 using namespace sonomesh::volume;
 
 TEST(Volume, IndexAndMillimetresMapBothWays) {
-  const Volume v(Vec3i(4, 5, 6), Vec3f(0.5f, 1.0f, 2.0f), Vec3f(10.0f, 20.0f, 30.0f), VoxelType::UInt8);
+  const Volume v(Vec3i(4, 5, 6), Vec3f(0.5f, 1.0f, 2.0f), Vec3f(10.0f, 20.0f, 30.0f),
+                 VoxelType::UInt8);
   const Vec3f p = v.index_to_mm(Vec3f(1, 2, 3));
   EXPECT_FLOAT_EQ(p.x(), 10.5f);
   EXPECT_FLOAT_EQ(p.y(), 22.0f);
@@ -86,7 +87,8 @@ TEST(Smoothing, ImpulseSpreadsWithVarianceSigmaVoxSquaredOnAnisotropicGrid) {
 
 TEST(Smoothing, LinearRampIsUnchangedAwayFromBordersAndIntegerTypesMatchFloat) {
   const Vec3i dims(40, 36, 30);
-  const Volume ramp = linear_ramp(dims, Vec3f(1, 1, 1), Vec3f(0, 0, 0), Vec3f(1.5f, 2.0f, 2.5f), 10.0f);
+  const Volume ramp =
+      linear_ramp(dims, Vec3f(1, 1, 1), Vec3f(0, 0, 0), Vec3f(1.5f, 2.0f, 2.5f), 10.0f);
   const Volume s = smooth_gaussian(ramp, 1.5f);
   const int r = 7;  // > 4 sigma
   for (int k = r; k < dims.z() - r; k += 3)
@@ -104,7 +106,8 @@ TEST(Smoothing, LinearRampIsUnchangedAwayFromBordersAndIntegerTypesMatchFloat) {
     u16.u16()[n] = val;
     f.f32()[n] = val;
   }
-  const Volume a = smooth_gaussian(u8, 1.0f), b = smooth_gaussian(u16, 1.0f), c = smooth_gaussian(f, 1.0f);
+  const Volume a = smooth_gaussian(u8, 1.0f), b = smooth_gaussian(u16, 1.0f),
+               c = smooth_gaussian(f, 1.0f);
   for (std::size_t n = 0; n < f.voxel_count(); n += 97) {
     ASSERT_NEAR(a.f32()[n], c.f32()[n], 1e-3f);
     ASSERT_NEAR(b.f32()[n], c.f32()[n], 1e-3f);
@@ -135,7 +138,8 @@ std::vector<double> reference_kernel(double sigma_vox) {
   const int radius = std::max(1, static_cast<int>(std::ceil(4.0 * sigma_vox)));
   std::vector<double> k(2 * radius + 1);
   double sum = 0.0;
-  for (int i = -radius; i <= radius; ++i) sum += k[i + radius] = std::exp(-0.5 * i * i / (sigma_vox * sigma_vox));
+  for (int i = -radius; i <= radius; ++i)
+    sum += k[i + radius] = std::exp(-0.5 * i * i / (sigma_vox * sigma_vox));
   for (double& w : k) w /= sum;
   return k;
 }
@@ -189,7 +193,8 @@ TEST(Smoothing, MatchesNaiveTripleLoopWithReplicatedBordersForUInt8AndFloat32) {
 
 TEST(Gradient, LinearRampIsExactInMillimetresIncludingBorders) {
   const Vec3f a(2.0f, 3.0f, -1.0f);
-  const Volume ramp = linear_ramp(Vec3i(12, 10, 8), Vec3f(0.5f, 1.25f, 2.0f), Vec3f(-4, 1, 3), a, 5.0f);
+  const Volume ramp =
+      linear_ramp(Vec3i(12, 10, 8), Vec3f(0.5f, 1.25f, 2.0f), Vec3f(-4, 1, 3), a, 5.0f);
   const Gradient g = central_gradient(ramp);
   ASSERT_EQ(g.gx.dims(), ramp.dims());
   for (std::size_t n = 0; n < ramp.voxel_count(); ++n) {
@@ -199,7 +204,8 @@ TEST(Gradient, LinearRampIsExactInMillimetresIncludingBorders) {
   }
   // A quadratic along x: central differences are exact inside, one-sided at the ends.
   Volume q(Vec3i(6, 2, 1), Vec3f(1, 1, 1), Vec3f(0, 0, 0), VoxelType::UInt8);
-  for (int i = 0; i < 6; ++i) q.u8()[q.linear_index(i, 0, 0)] = q.u8()[q.linear_index(i, 1, 0)] = i * i;
+  for (int i = 0; i < 6; ++i)
+    q.u8()[q.linear_index(i, 0, 0)] = q.u8()[q.linear_index(i, 1, 0)] = i * i;
   const Gradient gq = central_gradient(q);
   EXPECT_FLOAT_EQ(gq.gx.value(0, 0, 0), 1.0f);
   EXPECT_FLOAT_EQ(gq.gx.value(3, 0, 0), 6.0f);
@@ -210,7 +216,8 @@ TEST(Gradient, LinearRampIsExactInMillimetresIncludingBorders) {
 
 TEST(Sampling, TrilinearIsExactOnLinearFunctionsAndClampsOutside) {
   const Vec3f a(0.7f, -1.3f, 2.1f);
-  const Volume ramp = linear_ramp(Vec3i(10, 9, 8), Vec3f(0.5f, 1.0f, 1.5f), Vec3f(1, -2, 3), a, 4.0f);
+  const Volume ramp =
+      linear_ramp(Vec3i(10, 9, 8), Vec3f(0.5f, 1.0f, 1.5f), Vec3f(1, -2, 3), a, 4.0f);
   const Gradient g = central_gradient(ramp);
   std::mt19937 rng(7);
   std::uniform_real_distribution<float> ux(0, 9), uy(0, 8), uz(0, 7);

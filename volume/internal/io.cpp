@@ -1,15 +1,15 @@
 // Format dispatch and helpers shared by the NRRD and MetaImage code.
 #include "volume/internal/io.h"
 
+#include <zlib.h>
+
+#include <Eigen/SVD>
 #include <algorithm>
 #include <cctype>
 #include <climits>
 #include <cmath>
 #include <fstream>
 #include <system_error>
-
-#include <Eigen/SVD>
-#include <zlib.h>
 
 namespace sonomesh::volume {
 namespace internal {
@@ -28,8 +28,8 @@ VolumeIoError io_error(Code code, const std::filesystem::path& path, std::string
 std::optional<VolumeIoError> check_dims(const std::filesystem::path& path,
                                         const std::array<long long, 3>& dims,
                                         const ReadOptions& options) {
-  const std::string text = std::to_string(dims[0]) + " x " + std::to_string(dims[1]) + " x " +
-                           std::to_string(dims[2]);
+  const std::string text =
+      std::to_string(dims[0]) + " x " + std::to_string(dims[1]) + " x " + std::to_string(dims[2]);
   for (long long d : dims)
     if (d <= 0 || d > INT_MAX)
       return io_error(Code::BadDimensions, path, "invalid dimensions " + text);
@@ -78,10 +78,11 @@ std::optional<VolumeIoError> axis_geometry(const std::filesystem::path& path,
   for (int a = 0; a < 3; ++a)
     for (int b = a + 1; b < 3; ++b)
       if (std::abs(unit.col(a).dot(unit.col(b))) > kTolerance)
-        return io_error(Code::UnsupportedOrientation, path,
-                        "directions of axes " + std::to_string(a) + " " + axis_text(directions[a]) +
-                            " and " + std::to_string(b) + " " + axis_text(directions[b]) +
-                            " are not orthogonal; only orthonormal direction matrices are supported");
+        return io_error(
+            Code::UnsupportedOrientation, path,
+            "directions of axes " + std::to_string(a) + " " + axis_text(directions[a]) + " and " +
+                std::to_string(b) + " " + axis_text(directions[b]) +
+                " are not orthogonal; only orthonormal direction matrices are supported");
   if (diagonal) {
     for (int a = 0; a < 3; ++a) out.flip[a] = unit(a, a) < 0.0;
     out.direction = Mat3f::Identity();
@@ -99,7 +100,8 @@ template <typename T>
 void flip_data(std::vector<T>& v, const Vec3i& dims, const std::array<bool, 3>& flip) {
   const std::size_t nx = dims.x(), ny = dims.y(), nz = dims.z();
   if (flip[0])
-    for (std::size_t r = 0; r < ny * nz; ++r) std::reverse(v.begin() + r * nx, v.begin() + (r + 1) * nx);
+    for (std::size_t r = 0; r < ny * nz; ++r)
+      std::reverse(v.begin() + r * nx, v.begin() + (r + 1) * nx);
   if (flip[1])
     for (std::size_t k = 0; k < nz; ++k)
       for (std::size_t j = 0; j < ny / 2; ++j)
@@ -121,13 +123,20 @@ void apply_geometry(Volume& volume, const AxisGeometry& axes, const Vec3f& file_
   volume.set_origin_mm(origin);
   if (!flip[0] && !flip[1] && !flip[2]) return;
   switch (volume.type()) {
-    case VoxelType::UInt8: flip_data(volume.u8(), volume.dims(), flip); break;
-    case VoxelType::UInt16: flip_data(volume.u16(), volume.dims(), flip); break;
-    case VoxelType::Float32: flip_data(volume.f32(), volume.dims(), flip); break;
+    case VoxelType::UInt8:
+      flip_data(volume.u8(), volume.dims(), flip);
+      break;
+    case VoxelType::UInt16:
+      flip_data(volume.u16(), volume.dims(), flip);
+      break;
+    case VoxelType::Float32:
+      flip_data(volume.f32(), volume.dims(), flip);
+      break;
   }
 }
 
-bool read_bytes(const std::filesystem::path& file, std::uintmax_t offset, void* dst, std::size_t count) {
+bool read_bytes(const std::filesystem::path& file, std::uintmax_t offset, void* dst,
+                std::size_t count) {
   std::ifstream in(file, std::ios::binary);
   if (!in) return false;
   in.seekg(static_cast<std::streamoff>(offset));
@@ -152,7 +161,8 @@ std::optional<VolumeIoError> inflate_exact(const std::filesystem::path& path,
     zs.next_in = src.data() + in_done;
     zs.avail_in = static_cast<uInt>(in_chunk);
     const bool overflow = out_done == dst_size;  // all expected bytes produced; probe for more
-    const std::size_t out_chunk = overflow ? sizeof scratch : std::min<std::size_t>(dst_size - out_done, 1u << 30);
+    const std::size_t out_chunk =
+        overflow ? sizeof scratch : std::min<std::size_t>(dst_size - out_done, 1u << 30);
     zs.next_out = overflow ? scratch : dst + out_done;
     zs.avail_out = static_cast<uInt>(out_chunk);
     const int ret = inflate(&zs, Z_NO_FLUSH);
@@ -175,8 +185,8 @@ std::optional<VolumeIoError> inflate_exact(const std::filesystem::path& path,
   }
   if (out_done != dst_size)
     return io_error(Code::TruncatedData, path,
-                    "compressed data holds " + std::to_string(out_done) + " bytes, the header needs " +
-                        std::to_string(dst_size));
+                    "compressed data holds " + std::to_string(out_done) +
+                        " bytes, the header needs " + std::to_string(dst_size));
   return std::nullopt;
 }
 
@@ -217,7 +227,8 @@ VolumeReadResult read_volume(const std::filesystem::path& path, const ReadOption
     return {Volume{}, io_error(Code::BadHeader, path, e.what())};
   }
   return {Volume{}, io_error(Code::UnknownFormat, path,
-                             "unknown extension '" + ext + "' (expected .nrrd, .nhdr, .mha, .mhd, .nii or .nii.gz)")};
+                             "unknown extension '" + ext +
+                                 "' (expected .nrrd, .nhdr, .mha, .mhd, .nii or .nii.gz)")};
 }
 
 std::optional<VolumeIoError> write_volume(const Volume& volume, const std::filesystem::path& path,
@@ -232,8 +243,9 @@ std::optional<VolumeIoError> write_volume(const Volume& volume, const std::files
   } catch (const std::bad_alloc&) {
     return io_error(Code::IoError, path, "out of memory while writing");
   }
-  return io_error(Code::UnknownFormat, path,
-                  "unknown extension '" + ext + "' (expected .nrrd, .nhdr, .mha, .mhd, .nii or .nii.gz)");
+  return io_error(
+      Code::UnknownFormat, path,
+      "unknown extension '" + ext + "' (expected .nrrd, .nhdr, .mha, .mhd, .nii or .nii.gz)");
 }
 
 }  // namespace sonomesh::volume

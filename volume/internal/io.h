@@ -33,7 +33,7 @@ std::optional<VolumeIoError> check_dims(const std::filesystem::path& path,
 /// non-finite, non-orthogonal or degenerate axes are refused (UnsupportedOrientation).
 struct AxisGeometry {
   Vec3f spacing_mm;
-  std::array<bool, 3> flip{};        // direction points to -axis (diagonal case only)
+  std::array<bool, 3> flip{};           // direction points to -axis (diagonal case only)
   Mat3f direction = Mat3f::Identity();  // column c = unit LPS direction of index axis c
 };
 std::optional<VolumeIoError> axis_geometry(const std::filesystem::path& path,

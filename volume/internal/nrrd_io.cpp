@@ -7,6 +7,8 @@
 // data on disk before the payload is read. Teem is handed only what nrrd_scan.h validated, through
 // a short path; raw and gzip payloads in one file are read here (Teem's gzip reader leaks its
 // stream state on corrupt data), other layouts by Teem.
+#include <teem/nrrd.h>
+
 #include <algorithm>
 #include <charconv>
 #include <climits>
@@ -16,8 +18,6 @@
 #include <fstream>
 #include <memory>
 #include <mutex>
-
-#include <teem/nrrd.h>
 
 #include "volume/internal/io.h"
 #include "volume/internal/nrrd_scan.h"
@@ -68,15 +68,19 @@ using IoStatePtr = std::unique_ptr<NrrdIoState, IoStateDeleter>;
 // Teem's voxel types: the three native ones, others converted to float.
 std::optional<VoxelType> target_type(int nrrd_type) {
   switch (nrrd_type) {
-    case nrrdTypeUChar: return VoxelType::UInt8;
-    case nrrdTypeUShort: return VoxelType::UInt16;
+    case nrrdTypeUChar:
+      return VoxelType::UInt8;
+    case nrrdTypeUShort:
+      return VoxelType::UInt16;
     case nrrdTypeFloat:
     case nrrdTypeChar:
     case nrrdTypeShort:
     case nrrdTypeInt:
     case nrrdTypeUInt:
-    case nrrdTypeDouble: return VoxelType::Float32;
-    default: return std::nullopt;
+    case nrrdTypeDouble:
+      return VoxelType::Float32;
+    default:
+      return std::nullopt;
   }
 }
 
@@ -106,11 +110,10 @@ std::optional<VolumeIoError> geometry(const std::filesystem::path& path, const N
     for (int a = 0; a < 3; ++a)
       for (int c = 0; c < 3; ++c) dirs[a][c] = n->axis[a].spaceDirection[c];
     for (int c = 0; c < 3; ++c) org[c] = std::isfinite(n->spaceOrigin[c]) ? n->spaceOrigin[c] : 0.0;
-    const std::array<double, 3> sign = n->space == nrrdSpaceRightAnteriorSuperior
-                                           ? std::array<double, 3>{-1, -1, 1}
-                                       : n->space == nrrdSpaceLeftAnteriorSuperior
-                                           ? std::array<double, 3>{1, -1, 1}
-                                           : std::array<double, 3>{1, 1, 1};
+    const std::array<double, 3> sign =
+        n->space == nrrdSpaceRightAnteriorSuperior  ? std::array<double, 3>{-1, -1, 1}
+        : n->space == nrrdSpaceLeftAnteriorSuperior ? std::array<double, 3>{1, -1, 1}
+                                                    : std::array<double, 3>{1, 1, 1};
     for (int c = 0; c < 3; ++c) {
       org[c] *= sign[c];
       for (int a = 0; a < 3; ++a) dirs[a][c] *= sign[c];
@@ -125,18 +128,19 @@ std::optional<VolumeIoError> geometry(const std::filesystem::path& path, const N
                     "space dimension " + std::to_string(n->spaceDim) + " (need 3)");
   }
   if (auto err = axis_geometry(path, dirs, axes)) return err;
-  origin = Vec3f(static_cast<float>(org[0]), static_cast<float>(org[1]), static_cast<float>(org[2]));
+  origin =
+      Vec3f(static_cast<float>(org[0]), static_cast<float>(org[1]), static_cast<float>(org[2]));
   if (!origin.allFinite()) return io_error(Code::BadHeader, path, "space origin out of range");
   return std::nullopt;
 }
 
 // Where the payload is, and whether the bytes on disk can hold what the header announces.
 struct Payload {
-  std::filesystem::path file;   // first (or only) data file
-  std::uintmax_t offset = 0;    // where the data starts in it
+  std::filesystem::path file;  // first (or only) data file
+  std::uintmax_t offset = 0;   // where the data starts in it
   std::uintmax_t available = 0;
-  bool exact = true;            // one file (or attached), no skips: the size must match exactly
-  bool single = true;           // at most one data file
+  bool exact = true;   // one file (or attached), no skips: the size must match exactly
+  bool single = true;  // at most one data file
 };
 
 std::optional<VolumeIoError> locate_payload(const std::filesystem::path& path,
@@ -180,8 +184,8 @@ std::optional<VolumeIoError> check_payload_size(const std::filesystem::path& pat
                           std::to_string(expected));
     if (p.exact && p.available > expected)
       return io_error(Code::SizeMismatch, path,
-                      "data has " + std::to_string(p.available) + " bytes, more than the header's " +
-                          std::to_string(expected));
+                      "data has " + std::to_string(p.available) +
+                          " bytes, more than the header's " + std::to_string(expected));
   } else if (enc == nrrdEncodingGzip || enc == nrrdEncodingBzip2) {
     if (!enc->available())
       return io_error(Code::Compression, path,
@@ -202,8 +206,9 @@ std::optional<VolumeIoError> read_payload(const std::filesystem::path& path, con
                                           bool gzip, unsigned char* dst, std::size_t expected) {
   if (!gzip) {
     if (!read_bytes(p.file, p.offset, dst, expected))
-      return io_error(Code::TruncatedData, path, "cannot read " + std::to_string(expected) +
-                                                     " bytes of data from " + p.file.string());
+      return io_error(
+          Code::TruncatedData, path,
+          "cannot read " + std::to_string(expected) + " bytes of data from " + p.file.string());
     return std::nullopt;
   }
   std::vector<unsigned char> packed(static_cast<std::size_t>(p.available));
@@ -222,15 +227,32 @@ void swap_endian(unsigned char* data, std::size_t bytes, std::size_t size) {
 
 void fill_volume(Volume& volume, int nrrd_type, const void* data, std::size_t bytes) {
   switch (nrrd_type) {
-    case nrrdTypeUChar: std::memcpy(volume.u8().data(), data, bytes); break;
-    case nrrdTypeUShort: std::memcpy(volume.u16().data(), data, bytes); break;
-    case nrrdTypeFloat: std::memcpy(volume.f32().data(), data, bytes); break;
-    case nrrdTypeChar: convert_to_float<signed char>(data, volume.f32()); break;
-    case nrrdTypeShort: convert_to_float<short>(data, volume.f32()); break;
-    case nrrdTypeInt: convert_to_float<int>(data, volume.f32()); break;
-    case nrrdTypeUInt: convert_to_float<unsigned int>(data, volume.f32()); break;
-    case nrrdTypeDouble: convert_to_float<double>(data, volume.f32()); break;
-    default: break;
+    case nrrdTypeUChar:
+      std::memcpy(volume.u8().data(), data, bytes);
+      break;
+    case nrrdTypeUShort:
+      std::memcpy(volume.u16().data(), data, bytes);
+      break;
+    case nrrdTypeFloat:
+      std::memcpy(volume.f32().data(), data, bytes);
+      break;
+    case nrrdTypeChar:
+      convert_to_float<signed char>(data, volume.f32());
+      break;
+    case nrrdTypeShort:
+      convert_to_float<short>(data, volume.f32());
+      break;
+    case nrrdTypeInt:
+      convert_to_float<int>(data, volume.f32());
+      break;
+    case nrrdTypeUInt:
+      convert_to_float<unsigned int>(data, volume.f32());
+      break;
+    case nrrdTypeDouble:
+      convert_to_float<double>(data, volume.f32());
+      break;
+    default:
+      break;
   }
 }
 
@@ -243,8 +265,8 @@ std::optional<VolumeIoError> teem_payload(const std::filesystem::path& path, con
   IoStatePtr fio(nrrdIoStateNew());
   if (nrrdLoad(full.get(), sp.path().c_str(), fio.get())) {
     const Code code = (enc == nrrdEncodingGzip || enc == nrrdEncodingBzip2) ? Code::Compression
-                      : enc == nrrdEncodingRaw                             ? Code::TruncatedData
-                                                                           : Code::BadHeader;
+                      : enc == nrrdEncodingRaw                              ? Code::TruncatedData
+                                                                            : Code::BadHeader;
     return io_error(code, path, "reading data: " + biff_message(&sp));
   }
   const Nrrd* n = full.get();
@@ -258,7 +280,8 @@ std::optional<VolumeIoError> teem_payload(const std::filesystem::path& path, con
 std::optional<VolumeIoError> check_header(const std::filesystem::path& path, const Nrrd* h,
                                           const ReadOptions& options, Vec3i& dims) {
   if (h->dim != 3)
-    return io_error(Code::BadDimensions, path, "has " + std::to_string(h->dim) + " dimensions, need 3");
+    return io_error(Code::BadDimensions, path,
+                    "has " + std::to_string(h->dim) + " dimensions, need 3");
   if (!target_type(h->type))
     return io_error(Code::UnsupportedType, path,
                     std::string("unsupported voxel type ") + airEnumStr(nrrdType, h->type));
@@ -266,12 +289,14 @@ std::optional<VolumeIoError> check_header(const std::filesystem::path& path, con
   for (int a = 0; a < 3; ++a)
     dims_ll[a] = static_cast<long long>(std::min<size_t>(h->axis[a].size, LLONG_MAX));
   if (auto err = check_dims(path, dims_ll, options)) return err;
-  dims = Vec3i(static_cast<int>(dims_ll[0]), static_cast<int>(dims_ll[1]), static_cast<int>(dims_ll[2]));
+  dims = Vec3i(static_cast<int>(dims_ll[0]), static_cast<int>(dims_ll[1]),
+               static_cast<int>(dims_ll[2]));
   return std::nullopt;
 }
 
 // Teem opens a single detached data file even when skipping data; say clearly that it is missing.
-std::optional<VolumeIoError> check_data_file(const std::filesystem::path& path, const HeaderScan& scan) {
+std::optional<VolumeIoError> check_data_file(const std::filesystem::path& path,
+                                             const HeaderScan& scan) {
   if (scan.data_file.empty() || scan.data_file.find(' ') != std::string::npos ||
       scan.data_file.find('%') != std::string::npos || scan.data_file == "LIST")
     return std::nullopt;
@@ -289,11 +314,12 @@ VolumeReadResult read_nrrd(const std::filesystem::path& path, const ReadOptions&
   if (auto err = scan_nrrd_header(path, scan)) return {Volume{}, err};
   if (auto err = check_data_file(path, scan)) return {Volume{}, err};
   const ShortPath sp(path);
-  if (sp.path().empty()) return {Volume{}, io_error(Code::IoError, path, "cannot open its directory")};
+  if (sp.path().empty())
+    return {Volume{}, io_error(Code::IoError, path, "cannot open its directory")};
 
   std::lock_guard<std::mutex> lock(teem_mutex());
   const BiffGuard biff_guard;
-  nrrdStateVerboseIO = 0;  // library code stays quiet; errors come back through biff
+  nrrdStateVerboseIO = 0;     // library code stays quiet; errors come back through biff
   NrrdPtr header(nrrdNew());  // pass 1: the header only
   IoStatePtr hio(nrrdIoStateNew());
   nrrdIoStateSet(hio.get(), nrrdIoStateSkipData, AIR_TRUE);
@@ -314,15 +340,23 @@ VolumeReadResult read_nrrd(const std::filesystem::path& path, const ReadOptions&
   if (auto err = check_payload_size(path, enc, payload, voxels, expected)) return {Volume{}, err};
 
   Volume volume(dims, axes.spacing_mm, origin, *target_type(h->type));
-  const bool here = (enc == nrrdEncodingRaw || enc == nrrdEncodingGzip) && payload.exact && payload.single;
+  const bool here =
+      (enc == nrrdEncodingRaw || enc == nrrdEncodingGzip) && payload.exact && payload.single;
   if (here) {  // native types straight into the volume, the others through a conversion buffer
     std::vector<unsigned char> converted;
     unsigned char* dst = nullptr;
     switch (h->type) {
-      case nrrdTypeUChar: dst = volume.u8().data(); break;
-      case nrrdTypeUShort: dst = reinterpret_cast<unsigned char*>(volume.u16().data()); break;
-      case nrrdTypeFloat: dst = reinterpret_cast<unsigned char*>(volume.f32().data()); break;
-      default: converted.resize(expected), dst = converted.data();
+      case nrrdTypeUChar:
+        dst = volume.u8().data();
+        break;
+      case nrrdTypeUShort:
+        dst = reinterpret_cast<unsigned char*>(volume.u16().data());
+        break;
+      case nrrdTypeFloat:
+        dst = reinterpret_cast<unsigned char*>(volume.f32().data());
+        break;
+      default:
+        converted.resize(expected), dst = converted.data();
     }
     if (auto err = read_payload(path, payload, enc == nrrdEncodingGzip, dst, expected))
       return {Volume{}, err};
@@ -342,9 +376,18 @@ std::optional<VolumeIoError> write_nrrd(const Volume& volume, const std::filesys
   void* data = nullptr;
   // Teem wraps the buffer without copying and only reads it when saving.
   switch (volume.type()) {
-    case VoxelType::UInt8: type = nrrdTypeUChar; data = const_cast<std::uint8_t*>(volume.u8().data()); break;
-    case VoxelType::UInt16: type = nrrdTypeUShort; data = const_cast<std::uint16_t*>(volume.u16().data()); break;
-    case VoxelType::Float32: type = nrrdTypeFloat; data = const_cast<float*>(volume.f32().data()); break;
+    case VoxelType::UInt8:
+      type = nrrdTypeUChar;
+      data = const_cast<std::uint8_t*>(volume.u8().data());
+      break;
+    case VoxelType::UInt16:
+      type = nrrdTypeUShort;
+      data = const_cast<std::uint16_t*>(volume.u16().data());
+      break;
+    case VoxelType::Float32:
+      type = nrrdTypeFloat;
+      data = const_cast<float*>(volume.f32().data());
+      break;
   }
   const Vec3i& d = volume.dims();
   const Vec3f& s = volume.spacing_mm();
@@ -370,7 +413,8 @@ std::optional<VolumeIoError> write_nrrd(const Volume& volume, const std::filesys
     }
   nrrdAxisInfoSet_va(nrrd.get(), nrrdAxisInfoSpaceDirection, dirs[0], dirs[1], dirs[2]);
   nrrdAxisInfoSet_va(nrrd.get(), nrrdAxisInfoKind, nrrdKindSpace, nrrdKindSpace, nrrdKindSpace);
-  nrrdAxisInfoSet_va(nrrd.get(), nrrdAxisInfoCenter, nrrdCenterCell, nrrdCenterCell, nrrdCenterCell);
+  nrrdAxisInfoSet_va(nrrd.get(), nrrdAxisInfoCenter, nrrdCenterCell, nrrdCenterCell,
+                     nrrdCenterCell);
 
   for (const auto& [key, value] : key_values)
     if (nrrdKeyValueAdd(nrrd.get(), key.c_str(), value.c_str()))

@@ -2,10 +2,9 @@
 #include <algorithm>
 #include <cmath>
 #include <memory>
-#include <stdexcept>
-
 #include <opencv2/core.hpp>
 #include <opencv2/imgproc.hpp>
+#include <stdexcept>
 
 #include "volume/volume.h"
 
@@ -30,25 +29,31 @@ cv::Mat gaussian_kernel(double sigma_vox) {
 
 int cv_depth(VoxelType type) {
   switch (type) {
-    case VoxelType::UInt8: return CV_8U;
-    case VoxelType::UInt16: return CV_16U;
-    case VoxelType::Float32: return CV_32F;
+    case VoxelType::UInt8:
+      return CV_8U;
+    case VoxelType::UInt16:
+      return CV_16U;
+    case VoxelType::Float32:
+      return CV_32F;
   }
   return CV_32F;
 }
 
 const void* raw_data(const Volume& v) {
   switch (v.type()) {
-    case VoxelType::UInt8: return v.u8().data();
-    case VoxelType::UInt16: return v.u16().data();
-    case VoxelType::Float32: return v.f32().data();
+    case VoxelType::UInt8:
+      return v.u8().data();
+    case VoxelType::UInt16:
+      return v.u16().data();
+    case VoxelType::Float32:
+      return v.f32().data();
   }
   return nullptr;
 }
 
 // Trilinear weights of a point in mm, clamped to the voxel-centre box.
 struct Trilinear {
-  std::size_t i000;   // linear index of the lower corner
+  std::size_t i000;        // linear index of the lower corner
   std::size_t dx, dy, dz;  // offsets to the upper neighbour along each axis (0 on a 1-voxel axis)
   float fx, fy, fz;
 };
@@ -87,13 +92,15 @@ inline float interpolate(const T* d, const Trilinear& t) {
   const std::size_t i = t.i000;
   const float c00 = static_cast<float>(d[i]) +
                     t.fx * (static_cast<float>(d[i + t.dx]) - static_cast<float>(d[i]));
-  const float c10 = static_cast<float>(d[i + t.dy]) +
-                    t.fx * (static_cast<float>(d[i + t.dy + t.dx]) - static_cast<float>(d[i + t.dy]));
+  const float c10 =
+      static_cast<float>(d[i + t.dy]) +
+      t.fx * (static_cast<float>(d[i + t.dy + t.dx]) - static_cast<float>(d[i + t.dy]));
   const std::size_t j = i + t.dz;
   const float c01 = static_cast<float>(d[j]) +
                     t.fx * (static_cast<float>(d[j + t.dx]) - static_cast<float>(d[j]));
-  const float c11 = static_cast<float>(d[j + t.dy]) +
-                    t.fx * (static_cast<float>(d[j + t.dy + t.dx]) - static_cast<float>(d[j + t.dy]));
+  const float c11 =
+      static_cast<float>(d[j + t.dy]) +
+      t.fx * (static_cast<float>(d[j + t.dy + t.dx]) - static_cast<float>(d[j + t.dy]));
   const float c0 = c00 + t.fy * (c10 - c00);
   const float c1 = c01 + t.fy * (c11 - c01);
   return c0 + t.fz * (c1 - c0);
@@ -257,7 +264,8 @@ void central_gradient(const Volume& input, Gradient& g) {
 float speckle_grain_mm(const Volume& input, const Vec3f& centre_mm, int radius_vox) {
   if (input.empty() || radius_vox < 1) return 0.0f;
   const Vec3i c = input.mm_to_index(centre_mm).array().round().cast<int>();
-  const Vec3i lo = (c.array() - radius_vox).max(0), hi = (c.array() + radius_vox).min(input.dims().array() - 1);
+  const Vec3i lo = (c.array() - radius_vox).max(0),
+              hi = (c.array() + radius_vox).min(input.dims().array() - 1);
   double sum = 0.0, sum2 = 0.0;
   std::size_t n = 0;
   for (int k = lo.z(); k <= hi.z(); ++k)
@@ -291,7 +299,8 @@ float speckle_grain_mm(const Volume& input, const Vec3f& centre_mm, int radius_v
       if (pairs == 0) break;
       const double r = acc / static_cast<double>(pairs) / variance;
       if (r <= 0.5 && lag_half >= static_cast<float>(radius_vox))
-        lag_half = static_cast<float>(lag - 1) + static_cast<float>((previous - 0.5) / (previous - r));
+        lag_half =
+            static_cast<float>(lag - 1) + static_cast<float>((previous - 0.5) / (previous - r));
       // Speckle decorrelates within a few voxels; a correlation still above 0.25 at three voxels
       // is structure (a wall or tube crossing the cube along this axis), not grain: the axis is
       // not used (96³ double torus, seed in the tube: 0.47 there, and its grain read 2 voxels).
@@ -311,9 +320,12 @@ float sample_mm(const Volume& volume, const Vec3f& p_mm) {
   if (volume.empty()) throw std::invalid_argument("sample_mm: empty volume");
   const Trilinear t = trilinear(volume.dims(), volume.spacing_mm(), volume.origin_mm(), p_mm);
   switch (volume.type()) {
-    case VoxelType::UInt8: return interpolate(volume.u8().data(), t);
-    case VoxelType::UInt16: return interpolate(volume.u16().data(), t);
-    case VoxelType::Float32: return interpolate(volume.f32().data(), t);
+    case VoxelType::UInt8:
+      return interpolate(volume.u8().data(), t);
+    case VoxelType::UInt16:
+      return interpolate(volume.u16().data(), t);
+    case VoxelType::Float32:
+      return interpolate(volume.f32().data(), t);
   }
   return 0.0f;
 }

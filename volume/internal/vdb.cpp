@@ -1,13 +1,13 @@
 // write_vdb: the only translation unit of volume/ that includes OpenVDB (slow headers).
+#include <openvdb/io/File.h>
+#include <openvdb/math/Transform.h>
+#include <openvdb/openvdb.h>
+
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <mutex>
 #include <stdexcept>
-
-#include <openvdb/io/File.h>
-#include <openvdb/math/Transform.h>
-#include <openvdb/openvdb.h>
 
 #include "volume/volume.h"
 
@@ -34,9 +34,9 @@ std::optional<VolumeIoError> write_vdb(const Volume& field, const std::filesyste
   using Code = VolumeIoError::Code;
   if (field.empty()) return VolumeIoError{Code::BadDimensions, path.string() + ": empty volume"};
   if (field.type() != VoxelType::Float32)
-    return VolumeIoError{Code::UnsupportedType,
-                         path.string() + ": write_vdb needs a float volume, got " +
-                             to_string(field.type())};
+    return VolumeIoError{
+        Code::UnsupportedType,
+        path.string() + ": write_vdb needs a float volume, got " + to_string(field.type())};
   try {
     init_openvdb();
     auto grid = openvdb::FloatGrid::create(0.0f);

@@ -1,18 +1,22 @@
+#include "volume/volume.h"
+
 #include <algorithm>
 #include <cassert>
 #include <cstring>
 #include <stdexcept>
 
-#include "volume/volume.h"
 #include "volume/decoded_volume.h"
 
 namespace sonomesh::volume {
 
 const char* to_string(VoxelType type) {
   switch (type) {
-    case VoxelType::UInt8: return "uint8";
-    case VoxelType::UInt16: return "uint16";
-    case VoxelType::Float32: return "float";
+    case VoxelType::UInt8:
+      return "uint8";
+    case VoxelType::UInt16:
+      return "uint16";
+    case VoxelType::Float32:
+      return "float";
   }
   return "unknown";
 }
@@ -24,9 +28,15 @@ Volume::Volume(const Vec3i& dims, const Vec3f& spacing_mm, const Vec3f& origin_m
     throw std::invalid_argument("Volume: spacing_mm must be positive and finite");
   const std::size_t n = voxel_count();
   switch (type) {
-    case VoxelType::UInt8: data_ = std::vector<std::uint8_t>(n, 0); break;
-    case VoxelType::UInt16: data_ = std::vector<std::uint16_t>(n, 0); break;
-    case VoxelType::Float32: data_ = std::vector<float>(n, 0.0f); break;
+    case VoxelType::UInt8:
+      data_ = std::vector<std::uint8_t>(n, 0);
+      break;
+    case VoxelType::UInt16:
+      data_ = std::vector<std::uint16_t>(n, 0);
+      break;
+    case VoxelType::Float32:
+      data_ = std::vector<float>(n, 0.0f);
+      break;
   }
 }
 
@@ -43,8 +53,9 @@ Volume Volume::from_raw(const acquire::RawVolume& raw) {
   v.set_direction(Eigen::Map<const Mat3f>(raw.direction.data()));
   const std::size_t bytes = v.voxel_count() * acquire::bytes_per_voxel(raw.type);
   if (raw.voxels.size() != bytes)
-    throw std::invalid_argument("Volume::from_raw: payload has " + std::to_string(raw.voxels.size()) +
-                                " bytes, dims and type need " + std::to_string(bytes));
+    throw std::invalid_argument("Volume::from_raw: payload has " +
+                                std::to_string(raw.voxels.size()) + " bytes, dims and type need " +
+                                std::to_string(bytes));
   if (type == VoxelType::UInt8) {
     std::memcpy(v.u8().data(), raw.voxels.data(), bytes);
   } else {
