@@ -76,6 +76,32 @@ std::optional<std::string> check_writable(const std::string& option, const std::
   return std::nullopt;
 }
 
+// A suspect result is still written (DESIGN.md): one warning line, exit 0.
+void warn_if_suspect(const ProcessArgs& args, const PipelineResult& result) {
+  if (result.quality_ok) return;
+  std::string reasons;
+  for (const std::string& r : result.quality_reasons) reasons += (reasons.empty() ? "" : ", ") + r;
+  std::fprintf(stderr, "sonomeshd process: warning: %s: result is suspect (%s)\n",
+               args.input.c_str(), reasons.c_str());
+}
+
+// The mesh and the optional balloon, labels and indicator files; the first problem, if any.
+std::optional<std::string> write_outputs(const ProcessArgs& args, const PipelineResult& result,
+                                         const volume::Volume& input) {
+  if (auto problem = internal::write_mesh_file(result.mesh, input, args.mesh)) return problem;
+  if (!args.balloon.empty())
+    if (auto problem =
+            internal::write_balloon_ply(result.balloon, result.balloon_stop, input, args.balloon))
+      return problem;
+  if (!args.labels.empty() && result.labels)
+    if (auto problem =
+            internal::write_labels(*result.labels, input, args.labels, {args.labels_description}))
+      return problem;
+  if (!args.vdb.empty() && result.indicator)
+    return internal::write_indicator_vdb(*result.indicator, args.vdb);
+  return std::nullopt;
+}
+
 int run_process(const ProcessArgs& args) {
   if (args.seed_index.empty() == args.seed_mm.empty())
     return fail(kBadArguments, "give exactly one of --seed-index I,J,K and --seed-mm X,Y,Z");
@@ -136,28 +162,8 @@ int run_process(const ProcessArgs& args) {
       return fail(kFailed, *problem);
   }
   if (!result.ok) return fail(kFailed, args.input + ": " + result.error);
-  // A suspect result is still written (DESIGN.md): one warning line, exit 0.
-  if (!result.quality_ok) {
-    std::string reasons;
-    for (const std::string& r : result.quality_reasons)
-      reasons += (reasons.empty() ? "" : ", ") + r;
-    std::fprintf(stderr, "sonomeshd process: warning: %s: result is suspect (%s)\n",
-                 args.input.c_str(), reasons.c_str());
-  }
-
-  if (auto problem = internal::write_mesh_file(result.mesh, input, args.mesh))
-    return fail(kFailed, *problem);
-  if (!args.balloon.empty())
-    if (auto problem =
-            internal::write_balloon_ply(result.balloon, result.balloon_stop, input, args.balloon))
-      return fail(kFailed, *problem);
-  if (!args.labels.empty() && result.labels)
-    if (auto problem =
-            internal::write_labels(*result.labels, input, args.labels, {args.labels_description}))
-      return fail(kFailed, *problem);
-  if (!args.vdb.empty() && result.indicator)
-    if (auto problem = internal::write_indicator_vdb(*result.indicator, args.vdb))
-      return fail(kFailed, *problem);
+  warn_if_suspect(args, result);
+  if (auto problem = write_outputs(args, result, input)) return fail(kFailed, *problem);
   return 0;
 }
 
