@@ -31,25 +31,19 @@ RemeshLimits remesh_limits(const BalloonOptions& o, float vox_mm) {
   return {0.8f * o.target_edge_vox * vox_mm, (4.0f / 3.0f) * o.target_edge_vox * vox_mm};
 }
 
+// S^0 as a BalloonMesh of its own, so that both constructors start from a given mesh.
+static BalloonMesh uv_sphere(const Vec3f& centre_mm, float radius_mm) {
+  BalloonMesh bm;
+  make_uv_sphere(bm, centre_mm, radius_mm, 10, 11);
+  return bm;
+}
+
 BalloonEvolution::BalloonEvolution(const volume::Volume& smoothed, const ImageSampler& sampler,
                                    const BalloonOptions& options, const CostRule& cost,
                                    const WallSnap& snap, const Vec3f& seed_mm, float radius_mm,
                                    BalloonStats& stats)
-    : smoothed_(smoothed),
-      sampler_(sampler),
-      options_(options),
-      cost_(cost),
-      snap_(snap),
-      kernel_(options, smoothed, smoothed.spacing_mm().minCoeff()),
-      limits_(remesh_limits(options, smoothed.spacing_mm().minCoeff())),
-      stall_mm_(options.stall_motion_vox * smoothed.spacing_mm().minCoeff()),
-      max_vertices_(leak_bound(smoothed, options, smoothed.spacing_mm().minCoeff())),
-      stats_(stats),
-      workers_(options.threads),
-      marks_(smoothed) {
-  make_uv_sphere(bm_, seed_mm, radius_mm, 10, 11);
-  begin();
-}
+    : BalloonEvolution(smoothed, sampler, options, cost, snap, uv_sphere(seed_mm, radius_mm),
+                       stats) {}
 
 BalloonEvolution::BalloonEvolution(const volume::Volume& smoothed, const ImageSampler& sampler,
                                    const BalloonOptions& options, const CostRule& cost,
