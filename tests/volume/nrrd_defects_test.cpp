@@ -71,6 +71,24 @@ TEST(NrrdDefects, LongCommentsAndKeyValuesStillRead) {
   EXPECT_EQ(r.volume.value(1, 1, 1), '8');
 }
 
+// The header is read a block at a time (not as one zeroed 1 MiB buffer per file): the blank line
+// after many short lines is still found, and a header over 1 MiB is still refused.
+TEST(NrrdDefects, HeaderAcrossReadBlocksAndHeaderLimit) {
+  TempDir dir;
+  std::string comments;  // the blank line ~10 KiB into the file
+  for (int i = 0; i < 1000; ++i) comments += "# c\n";
+  const auto many = dir.path / "many.nrrd";
+  write_file(many, "NRRD0004\n" + comments + kFields + "\n12345678");
+  const auto r = read_volume(many);
+  ASSERT_TRUE(r) << r.error->message;
+  EXPECT_EQ(r.volume.value(1, 1, 1), '8');
+
+  const auto huge = dir.path / "huge.nrrd";
+  write_file(huge, "NRRD0004\n" + kFields + "# " + std::string(std::size_t{1} << 20, 'c'));
+  expect_refused(huge, Code::BadHeader);
+  EXPECT_NE(read_volume(huge).error->message.find("longer than 1 MiB"), std::string::npos);
+}
+
 // A file path of ~1000 bytes ended up in Teem's messages just like a long line.
 TEST(NrrdDefects, LongPathsGetCleanErrors) {
   TempDir dir;

@@ -12,6 +12,7 @@
 #include <map>
 #include <vector>
 
+#include "volume/internal/header_lines.h"
 #include "volume/internal/io.h"
 
 namespace sonomesh::volume::internal {
@@ -87,49 +88,10 @@ struct Header {
   const std::string& get(const std::string& key) const { return fields.at(key); }
 };
 
-// The header's lines, read a block at a time up to kMaxHeader bytes: a header is a few hundred
-// bytes, and allocating (and zeroing) the whole 1 MiB limit per file made each read cost
-// milliseconds (under ASan, page faults: 32 reads/s in fuzzing; docs/robustness.md).
-class LineReader {
- public:
-  static constexpr std::size_t kMaxHeader = 1 << 20;
-  explicit LineReader(std::ifstream& in) : in_(in) {}
-  /// The next line without its '\n'; false at the end of the file or of kMaxHeader.
-  bool next(std::string& line) {
-    for (;;) {
-      const std::size_t eol = text_.find('\n', scan_);
-      if (eol != std::string::npos) {
-        line.assign(text_, pos_, eol - pos_);
-        pos_ = scan_ = eol + 1;
-        return true;
-      }
-      scan_ = text_.size();
-      if (!in_ || text_.size() >= kMaxHeader) break;
-      const std::size_t old = text_.size(), add = std::min<std::size_t>(kBlock, kMaxHeader - old);
-      text_.resize(old + add);
-      in_.read(text_.data() + old, static_cast<std::streamsize>(add));
-      text_.resize(old + static_cast<std::size_t>(in_.gcount()));
-    }
-    if (pos_ >= text_.size()) return false;
-    line.assign(text_, pos_);  // the last line has no '\n'
-    pos_ = scan_ = text_.size();
-    return true;
-  }
-  std::size_t consumed() const { return pos_; }
-  bool at_limit() const { return text_.size() >= kMaxHeader; }
-
- private:
-  static constexpr std::size_t kBlock = 4096;
-  std::ifstream& in_;
-  std::string text_;
-  std::size_t pos_ = 0;   // start of the next line
-  std::size_t scan_ = 0;  // text_ before this has no '\n' after pos_
-};
-
 std::optional<VolumeIoError> read_header(const std::filesystem::path& path, Header& header) {
   std::ifstream in(path, std::ios::binary);
   if (!in) return io_error(Code::IoError, path, "cannot open for reading");
-  LineReader reader(in);
+  HeaderLines reader(in);
   std::string raw_line;
   int line_no = 0;
   while (reader.next(raw_line)) {

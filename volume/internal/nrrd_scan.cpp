@@ -8,6 +8,8 @@
 #include <cstring>
 #include <fstream>
 
+#include "volume/internal/header_lines.h"
+
 namespace sonomesh::volume::internal {
 namespace {
 
@@ -50,36 +52,28 @@ std::optional<VolumeIoError> check_line(const std::filesystem::path& path, const
 std::optional<VolumeIoError> scan_nrrd_header(const std::filesystem::path& path, HeaderScan& scan) {
   std::ifstream in(path, std::ios::binary);
   if (!in) return io_error(Code::IoError, path, "cannot open for reading");
-  std::string text(kMaxNrrdHeader, '\0');
-  in.read(text.data(), static_cast<std::streamsize>(text.size()));
-  text.resize(static_cast<std::size_t>(in.gcount()));
-  const std::size_t first_eol = text.find('\n');
-  std::string magic = text.substr(0, std::min(first_eol, std::size_t{16}));
-  if (!magic.empty() && magic.back() == '\r') magic.pop_back();
-  if (!valid_magic(magic))
+  HeaderLines lines(in);
+  std::string line;
+  const auto bad_magic = [&] {
     return io_error(Code::UnknownFormat, path,
                     "not a NRRD file (no NRRD0001..NRRD0005 magic line)");
-  std::size_t pos = 0;
-  int line_no = 0;
-  while (pos < text.size()) {
-    std::size_t eol = text.find('\n', pos);
-    // A detached header may end at EOF without a newline; an attached one never does.
-    const bool at_end = eol == std::string::npos;
-    if (at_end && text.size() == kMaxNrrdHeader)
-      return io_error(Code::BadHeader, path, "header longer than 1 MiB");
-    if (at_end) eol = text.size();
-    std::string line = text.substr(pos, eol - pos);
+  };
+  if (!lines.next(line)) return bad_magic();
+  for (int line_no = 1;; ++line_no) {
     if (!line.empty() && line.back() == '\r') line.pop_back();
-    pos = at_end ? eol : eol + 1;
-    ++line_no;
-    if (line.empty() && !at_end) {
+    if (line_no == 1 && !valid_magic(line.substr(0, 16))) return bad_magic();
+    // A detached header may end at EOF without a newline; an attached one never does.
+    if (!lines.terminated() && lines.at_limit())
+      return io_error(Code::BadHeader, path, "header longer than 1 MiB");
+    if (line.empty() && lines.terminated()) {
       scan.has_end = true;
-      scan.header_bytes = pos;
+      scan.header_bytes = lines.consumed();
       return std::nullopt;
     }
     if (auto err = check_line(path, line, line_no, scan)) return err;
+    if (!lines.next(line)) break;
   }
-  scan.header_bytes = text.size();
+  scan.header_bytes = lines.consumed();
   return std::nullopt;
 }
 

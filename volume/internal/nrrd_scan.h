@@ -19,8 +19,6 @@ namespace sonomesh::volume::internal {
 /// Longest NRRD field line handed to Teem (a 3D "space directions" line with 17 digits per
 /// number is ~220 bytes; Teem's messages quote the line with up to ~300 bytes of context).
 constexpr std::size_t kMaxNrrdFieldLine = 400;
-/// Longest header (attached or detached) read at all.
-constexpr std::size_t kMaxNrrdHeader = std::size_t{1} << 20;
 
 // What a bounded look at the header text tells before Teem parses it.
 struct HeaderScan {
@@ -31,7 +29,8 @@ struct HeaderScan {
 
 /// Reads the header line by line: the magic must be exactly NRRD0001..NRRD0005 (anything else would
 /// send Teem to its plain-text reader, whose error path leaks), no NUL bytes, field lines of at
-/// most kMaxNrrdFieldLine bytes, the whole header within kMaxNrrdHeader.
+/// most kMaxNrrdFieldLine bytes, the whole header within
+/// HeaderLines::kMaxHeader (1 MiB).
 std::optional<VolumeIoError> scan_nrrd_header(const std::filesystem::path& path, HeaderScan& scan);
 
 /// A path to `file` short enough for Teem's messages: /proc/self/fd/<dir fd>/<file name>, through
