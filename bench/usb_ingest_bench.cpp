@@ -22,12 +22,10 @@ namespace {
 using namespace sonomesh;
 using Clock = std::chrono::steady_clock;
 
-int run(double seconds, int size, bool uint16) {
-  // Distinct simulated volumes (breathing phantom); the probe cycles through them, patching the
-  // sequence into the header so the host sees a gap-free stream of fresh records.
-  constexpr int kDistinct = 8;
+// Distinct simulated volumes (breathing phantom) encoded as probe records; empty on failure.
+std::vector<std::vector<std::uint8_t>> make_records(int size, bool uint16, int count) {
   std::vector<std::vector<std::uint8_t>> records;
-  for (int i = 0; i < kDistinct; ++i) {
+  for (int i = 0; i < count; ++i) {
     sim::PhantomSpec spec;
     spec.size_vox = size;
     spec.seed = 7;
@@ -45,12 +43,72 @@ int run(double seconds, int size, bool uint16) {
     auto rec = acquire::encode_volume_record(raw);
     if (!rec) {
       std::fprintf(stderr, "encode: %s\n", acquire::to_string(rec.error()).c_str());
-      return 1;
+      return {};
     }
     records.push_back(std::move(*rec));
   }
-  const std::size_t record_bytes = records.front().size();
+  return records;
+}
 
+struct Ingest {
+  std::uint64_t volumes = 0, errors = 0, voxel_bytes = 0;
+  bool ordered = true;
+  double wall_s = 0, cpu_s = 0;
+};
+
+// Reads from `source` for `seconds`; false after more than 10 errors.
+bool ingest(acquire::Source& source, double seconds, Ingest& in) {
+  std::uint64_t last_seq = 0;
+  const auto t0 = Clock::now();
+  const std::clock_t c0 = std::clock();
+  while (std::chrono::duration<double>(Clock::now() - t0).count() < seconds) {
+    auto r = source.next(std::chrono::seconds(5));
+    if (!r) {
+      ++in.errors;
+      std::fprintf(stderr, "error: %s\n", acquire::to_string(r.error()).c_str());
+      if (in.errors > 10) return false;
+      continue;
+    }
+    if (in.volumes > 0 && r->sequence != last_seq + 1) in.ordered = false;
+    last_seq = r->sequence;
+    in.voxel_bytes += r->voxels.size();
+    ++in.volumes;
+  }
+  in.wall_s = std::chrono::duration<double>(Clock::now() - t0).count();
+  in.cpu_s = static_cast<double>(std::clock() - c0) / CLOCKS_PER_SEC;
+  return true;
+}
+
+void report(const Ingest& in, int size, bool uint16, std::size_t record_bytes) {
+  const double volumes = static_cast<double>(in.volumes), wall = in.wall_s, cpu = in.cpu_s;
+  std::printf(
+      "usb_ingest_bench: %d^3 %s volumes over emulated USB (libusb async bulk IN, 4 x 1 MiB)\n",
+      size, uint16 ? "uint16" : "uint8");
+  std::printf("  volumes        %llu in %.2f s\n", static_cast<unsigned long long>(in.volumes),
+              wall);
+  std::printf("  rate           %.1f volumes/s (target >= 30)\n", volumes / wall);
+  std::printf("  throughput     %.1f MB/s of records (%.2f MB each), %.1f MB/s voxels\n",
+              volumes * static_cast<double>(record_bytes) / wall / 1e6,
+              static_cast<double>(record_bytes) / 1e6,
+              static_cast<double>(in.voxel_bytes) / wall / 1e6);
+  std::printf("  process cpu    %.2f s (%.0f%% of one core, host and emulated device together)\n",
+              cpu, 100.0 * cpu / wall);
+  // On a shared machine the rate is bounded by the CPU share the process gets (every URB is a
+  // round trip between the host thread and umockdev's thread); the CPU cost per volume says what
+  // an unloaded core could sustain.
+  if (in.volumes > 0 && cpu > 0)
+    std::printf("  cpu per volume %.2f ms (=> %.0f volumes/s per fully available core)\n",
+                1000.0 * cpu / volumes, volumes / cpu);
+  std::printf("  errors         %llu, sequences %s\n", static_cast<unsigned long long>(in.errors),
+              in.ordered ? "consecutive" : "NOT consecutive");
+}
+
+int run(double seconds, int size, bool uint16) {
+  // The probe cycles through the records, patching the sequence into the header so that the host
+  // sees a gap-free stream of fresh records.
+  constexpr int kDistinct = 8;
+  const auto records = make_records(size, uint16, kDistinct);
+  if (records.empty()) return 1;
   hil::FakeUsbBus bus;
   hil::FakeUsbProbe& probe = bus.add_probe({});
   std::uint64_t next_sequence = 0;
@@ -70,55 +128,17 @@ int run(double seconds, int size, bool uint16) {
     std::fprintf(stderr, "open: %s\n", acquire::to_string(source.error()).c_str());
     return 1;
   }
-  // Warm up (first transfers, allocations), then measure.
-  for (int i = 0; i < 5; ++i) {
+  for (int i = 0; i < 5; ++i) {  // warm up (first transfers, allocations), then measure
     auto r = (*source)->next(std::chrono::seconds(5));
     if (!r) {
       std::fprintf(stderr, "warm-up: %s\n", acquire::to_string(r.error()).c_str());
       return 1;
     }
   }
-  std::uint64_t volumes = 0, errors = 0, voxel_bytes = 0;
-  std::uint64_t last_seq = 0;
-  bool ordered = true;
-  const auto t0 = Clock::now();
-  const std::clock_t c0 = std::clock();
-  while (std::chrono::duration<double>(Clock::now() - t0).count() < seconds) {
-    auto r = (*source)->next(std::chrono::seconds(5));
-    if (!r) {
-      ++errors;
-      std::fprintf(stderr, "error: %s\n", acquire::to_string(r.error()).c_str());
-      if (errors > 10) return 1;
-      continue;
-    }
-    if (volumes > 0 && r->sequence != last_seq + 1) ordered = false;
-    last_seq = r->sequence;
-    voxel_bytes += r->voxels.size();
-    ++volumes;
-  }
-  const double wall = std::chrono::duration<double>(Clock::now() - t0).count();
-  const double cpu = static_cast<double>(std::clock() - c0) / CLOCKS_PER_SEC;
-  std::printf(
-      "usb_ingest_bench: %d^3 %s volumes over emulated USB (libusb async bulk IN, 4 x 1 MiB)\n",
-      size, uint16 ? "uint16" : "uint8");
-  std::printf("  volumes        %llu in %.2f s\n", static_cast<unsigned long long>(volumes), wall);
-  std::printf("  rate           %.1f volumes/s (target >= 30)\n",
-              static_cast<double>(volumes) / wall);
-  std::printf("  throughput     %.1f MB/s of records (%.2f MB each), %.1f MB/s voxels\n",
-              static_cast<double>(volumes) * static_cast<double>(record_bytes) / wall / 1e6,
-              static_cast<double>(record_bytes) / 1e6,
-              static_cast<double>(voxel_bytes) / wall / 1e6);
-  std::printf("  process cpu    %.2f s (%.0f%% of one core, host and emulated device together)\n",
-              cpu, 100.0 * cpu / wall);
-  // On a shared machine the rate is bounded by the CPU share the process gets (every URB is a
-  // round trip between the host thread and umockdev's thread); the CPU cost per volume says what
-  // an unloaded core could sustain.
-  if (volumes > 0 && cpu > 0)
-    std::printf("  cpu per volume %.2f ms (=> %.0f volumes/s per fully available core)\n",
-                1000.0 * cpu / static_cast<double>(volumes), static_cast<double>(volumes) / cpu);
-  std::printf("  errors         %llu, sequences %s\n", static_cast<unsigned long long>(errors),
-              ordered ? "consecutive" : "NOT consecutive");
-  return errors == 0 && ordered ? 0 : 1;
+  Ingest in;
+  if (!ingest(**source, seconds, in)) return 1;
+  report(in, size, uint16, records.front().size());
+  return in.errors == 0 && in.ordered ? 0 : 1;
 }
 
 }  // namespace
