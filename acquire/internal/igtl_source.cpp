@@ -99,19 +99,12 @@ class IgtlSource final : public Source {
   }
 
   void receive() {
-    for (int round = 0; round < 16; ++round) {
-      const ssize_t n = ::recv(fd_, buffer_.data(), buffer_.size(), 0);
-      if (n > 0) {
-        reader_.feed(buffer_.data(), static_cast<std::size_t>(n));
-        while (auto event = reader_.next()) take(std::move(*event));
-        if (fd_ < 0 || static_cast<std::size_t>(n) < buffer_.size()) return;
-        continue;
-      }
-      if (n < 0 && (errno == EAGAIN || errno == EWOULDBLOCK || errno == EINTR)) return;
-      link_down(n == 0 ? std::string("closed by the server") : std::strerror(errno),
-                n == 0 ? 0 : errno);
-      return;
-    }
+    const auto down = receive_available(fd_, buffer_, "server", [this](const auto* data, auto n) {
+      reader_.feed(data, n);
+      while (auto event = reader_.next()) take(std::move(*event));
+      return fd_ >= 0;  // a message may have ended the link
+    });
+    if (down) link_down(down->why, down->err);
   }
 
   void link_down(const std::string& why, int err) {

@@ -131,4 +131,21 @@ SocketWait wait_readable(int fd, Waker& waker, Clock::time_point deadline) {
   }
 }
 
+std::optional<LinkDown> receive_available(
+    int fd, std::vector<std::uint8_t>& buffer, const char* peer,
+    const std::function<bool(const std::uint8_t*, std::size_t)>& feed) {
+  for (int round = 0; round < 16; ++round) {
+    const ssize_t n = ::recv(fd, buffer.data(), buffer.size(), 0);
+    if (n > 0) {
+      if (!feed(buffer.data(), static_cast<std::size_t>(n))) return std::nullopt;
+      if (static_cast<std::size_t>(n) < buffer.size()) return std::nullopt;
+      continue;
+    }
+    if (n < 0 && (errno == EAGAIN || errno == EWOULDBLOCK || errno == EINTR)) return std::nullopt;
+    if (n == 0) return LinkDown{std::string("closed by the ") + peer, 0};
+    return LinkDown{std::strerror(errno), errno};
+  }
+  return std::nullopt;
+}
+
 }  // namespace sonomesh::acquire::internal

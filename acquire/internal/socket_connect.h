@@ -4,9 +4,13 @@
 /// (internal).
 
 #include <chrono>
+#include <cstddef>
+#include <cstdint>
+#include <functional>
 #include <optional>
 #include <string>
 #include <tl/expected.hpp>
+#include <vector>
 
 #include "acquire/acquire.h"
 #include "acquire/internal/backoff.h"
@@ -43,5 +47,18 @@ enum class SocketWait { Readable, Timeout, Failed };
 /// Waits for input on `fd` until `deadline` or a wake of the waker (then drained): Timeout.
 /// Failed leaves errno as poll set it.
 SocketWait wait_readable(int fd, Waker& waker, std::chrono::steady_clock::time_point deadline);
+
+/// Why receive_available found the link down: `why` for the message, `err` the errno (0: closed).
+struct LinkDown {
+  std::string why;
+  int err = 0;
+};
+
+/// Reads what `fd` has now into `feed`, `buffer` at a time, at most 16 buffers (so that a fast
+/// sender cannot starve the caller); stops at a short read, when it would block, or when `feed`
+/// returns false. nullopt while the link is up; an orderly close reads "closed by the <peer>".
+std::optional<LinkDown> receive_available(
+    int fd, std::vector<std::uint8_t>& buffer, const char* peer,
+    const std::function<bool(const std::uint8_t*, std::size_t)>& feed);
 
 }  // namespace sonomesh::acquire::internal

@@ -88,20 +88,12 @@ class SocketSource final : public Source {
     fd_ = -1;
   }
 
-  // Reads what is there (bounded, so a fast sender cannot starve the caller) into the decoder.
   void receive() {
-    for (int round = 0; round < 16; ++round) {
-      const ssize_t n = ::recv(fd_, buffer_.data(), buffer_.size(), 0);
-      if (n > 0) {
-        decoder_.feed(buffer_.data(), static_cast<std::size_t>(n));
-        if (static_cast<std::size_t>(n) < buffer_.size()) return;
-        continue;
-      }
-      if (n < 0 && (errno == EAGAIN || errno == EWOULDBLOCK || errno == EINTR)) return;
-      link_down(n == 0 ? std::string("closed by the probe") : std::string(std::strerror(errno)),
-                n == 0 ? 0 : errno);
-      return;
-    }
+    const auto down = receive_available(fd_, buffer_, "probe", [this](const auto* data, auto n) {
+      decoder_.feed(data, n);
+      return true;
+    });
+    if (down) link_down(down->why, down->err);
   }
 
   void link_down(const std::string& why, int err) {
