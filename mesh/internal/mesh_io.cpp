@@ -1,8 +1,10 @@
 // Mesh files: PLY (DESIGN.md fixes the output layout exactly), binary STL, OBJ, and a PLY reader.
 
 #include <Eigen/Geometry>
+#include <algorithm>
 #include <bit>
 #include <cmath>
+#include <cstdint>
 #include <cstring>
 #include <fstream>
 #include <sstream>
@@ -386,6 +388,36 @@ std::optional<MeshIoError> write_mesh(const Mesh& mesh, const std::filesystem::p
                   "unknown mesh extension (want .ply, .stl or .obj)");
 }
 
+// The fewest bytes one item of `e` can take: a binary property its type's size (a list at least its
+// count), an ascii value a character and a separator.
+std::uintmax_t min_item_bytes(const Element& e, bool ascii) {
+  std::uintmax_t bytes = 0;
+  for (const Property& p : e.properties)
+    bytes += ascii ? 2 : static_cast<std::uintmax_t>(type_size(p.is_list ? p.count_type : p.type));
+  return std::max<std::uintmax_t>(bytes, 1);
+}
+
+// The element counts against what is left of the file, before anything is allocated for them (a
+// header claiming 5·10¹⁶ vertices made read_element allocate that many; found by fuzz_ply).
+Failed check_counts(std::istream& in, bool ascii, const std::vector<Element>& elements) {
+  const auto here = in.tellg();
+  in.seekg(0, std::ios::end);
+  const auto end = in.tellg();
+  in.seekg(here);
+  if (here < 0 || end < here) return Failure{MeshIoError::Code::Truncated, "cannot size the file"};
+  // An ascii file's last value may lack its separator: one byte of slack.
+  std::uintmax_t left = static_cast<std::uintmax_t>(end - here) + (ascii ? 1 : 0);
+  for (const Element& e : elements) {
+    const std::uintmax_t item = min_item_bytes(e, ascii);
+    if (e.count > left / item)
+      return Failure{MeshIoError::Code::Truncated,
+                     "element " + e.name + " claims " + std::to_string(e.count) +
+                         " items, more than the " + std::to_string(left) + " bytes left hold"};
+    left -= e.count * item;
+  }
+  return std::nullopt;
+}
+
 MeshReadResult read_ply(const std::filesystem::path& path) {
   MeshReadResult r;
   auto fail = [&](MeshIoError::Code code, const std::string& what) {
@@ -402,6 +434,7 @@ MeshReadResult read_ply(const std::filesystem::path& path) {
   bool ascii = false;
   std::vector<Element> elements;
   if (Failed f = read_header(in, ascii, elements)) return fail(f->code, f->what);
+  if (Failed f = check_counts(in, ascii, elements)) return fail(f->code, f->what);
   Source src(in, ascii);
   bool have_vertices = false, have_faces = false;
   for (const Element& e : elements)

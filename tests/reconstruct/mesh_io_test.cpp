@@ -78,6 +78,33 @@ TEST(MeshIo, StopValueOutsideTheCodesIsRefused) {
   EXPECT_NE(r.error->message.find("stop value"), std::string::npos) << r.error->message;
 }
 
+// fuzz_ply's finding: a header claiming 5·10¹⁶ vertices made the reader allocate them. Counts
+// are now checked against the bytes the file has left, in ascii and binary; an exact file still
+// reads, to its last value without a newline.
+TEST(MeshIo, ElementCountsBeyondTheFileAreRefused) {
+  const std::string head =
+      "property double x\nproperty double y\nproperty double z\n"
+      "element face 1\nproperty list uchar int vertex_indices\nend_header\n";
+  const auto ascii = temp("hugecount.ply");
+  std::ofstream(ascii) << "ply\nformat ascii 1.0\nelement vertex 51111111111111111\n"
+                       << head << "0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n";
+  const auto binary = temp("hugecount_bin.ply");
+  std::ofstream(binary) << "ply\nformat binary_little_endian 1.0\nelement vertex 4000000000\n"
+                        << head << std::string(100, '\0');
+  for (const auto& path : {ascii, binary}) {
+    const MeshReadResult r = read_ply(path);
+    ASSERT_FALSE(r) << path;
+    EXPECT_EQ(r.error->code, MeshIoError::Code::Truncated);
+    EXPECT_NE(r.error->message.find("claims"), std::string::npos) << r.error->message;
+  }
+  const auto exact = temp("exact.ply");
+  std::ofstream(exact) << "ply\nformat ascii 1.0\nelement vertex 3\n"
+                       << head << "0 0 0\n1 0 0\n0 1 0\n3 0 1 2";
+  const MeshReadResult r = read_ply(exact);
+  ASSERT_TRUE(r) << r.error->message;
+  EXPECT_EQ(r.mesh.triangles.size(), 1u);
+}
+
 TEST(MeshIo, ReadsAsciiPlyWithQuads) {
   const auto path = temp("ascii.ply");
   std::ofstream(path)
