@@ -71,6 +71,61 @@ double median(std::vector<double> values) {
 
 }  // namespace
 
+// One phantom at one size: `repeat` timed runs after a warm-up, their medians printed as a row.
+void bench_case(const std::string& name, int size, int repeat, bool fresh_buffers,
+                const std::string& format) {
+  const sim::Phantom phantom = sim::make_phantom({.phantom = name, .size_vox = size});
+  const daemon::PipelineConfig config;
+  daemon::PipelineBuffers buffers;
+  auto run = [&] {
+    if (fresh_buffers) buffers = daemon::PipelineBuffers{};
+    return daemon::run_pipeline(phantom.image, phantom.seed_mm, config, buffers);
+  };
+  daemon::PipelineResult result = run();
+  std::vector<double> smooth, balloon, opening, reconstruct, mesh, reinflate, labels, total;
+  for (int r = 0; r < repeat; ++r) {
+    result = run();
+    const daemon::StageTimings& t = result.timings;
+    smooth.push_back(t.smooth_ms);
+    balloon.push_back(t.balloon_ms);
+    opening.push_back(t.opening_ms);
+    reconstruct.push_back(t.reconstruct_ms);
+    mesh.push_back(t.mesh_ms);
+    reinflate.push_back(t.reinflate_ms);
+    labels.push_back(t.labels_ms);
+    total.push_back(t.total_ms);
+  }
+  const double target_ms = size <= 128 ? 100.0 : 750.0;
+  const std::string grid = std::to_string(result.grid_dims.x()) + "x" +
+                           std::to_string(result.grid_dims.y()) + "x" +
+                           std::to_string(result.grid_dims.z());
+  if (format == "json") {
+    nlohmann::json row = {{"phantom", name},
+                          {"size", size},
+                          {"ok", result.ok},
+                          {"smooth_ms", median(smooth)},
+                          {"balloon_ms", median(balloon)},
+                          {"opening_ms", median(opening)},
+                          {"reconstruct_ms", median(reconstruct)},
+                          {"mesh_ms", median(mesh)},
+                          {"reinflate_ms", median(reinflate)},
+                          {"labels_ms", median(labels)},
+                          {"total_ms", median(total)},
+                          {"target_ms", target_ms},
+                          {"iterations", result.balloon_iterations},
+                          {"grid", grid}};
+    std::printf("%s\n", row.dump().c_str());
+  } else {
+    std::printf(
+        "| %s%s | %d³ | %.1f | %.1f | %.1f | %.1f | %.1f | %.1f | %.1f | %.1f | %s %.0f | %d "
+        "| %s |\n",
+        name.c_str(), result.ok ? "" : " (failed)", size, median(smooth), median(balloon),
+        median(opening), median(reconstruct), median(mesh), median(reinflate), median(labels),
+        median(total), median(total) <= target_ms ? "≤" : "> (missed)", target_ms,
+        result.balloon_iterations, grid.c_str());
+  }
+}
+
 int main(int argc, char** argv) {
   CLI::App app{"process_bench: per-stage pipeline time"};
   std::vector<int> sizes{128, 256};
@@ -111,56 +166,7 @@ int main(int argc, char** argv) {
   try {
     for (const int size : sizes)
       for (const std::string& name : phantoms) {
-        const sim::Phantom phantom = sim::make_phantom({.phantom = name, .size_vox = size});
-        const daemon::PipelineConfig config;
-        daemon::PipelineBuffers buffers;
-        auto run = [&] {
-          if (fresh_buffers) buffers = daemon::PipelineBuffers{};
-          return daemon::run_pipeline(phantom.image, phantom.seed_mm, config, buffers);
-        };
-        daemon::PipelineResult result = run();
-        std::vector<double> smooth, balloon, opening, reconstruct, mesh, reinflate, labels, total;
-        for (int r = 0; r < repeat; ++r) {
-          result = run();
-          const daemon::StageTimings& t = result.timings;
-          smooth.push_back(t.smooth_ms);
-          balloon.push_back(t.balloon_ms);
-          opening.push_back(t.opening_ms);
-          reconstruct.push_back(t.reconstruct_ms);
-          mesh.push_back(t.mesh_ms);
-          reinflate.push_back(t.reinflate_ms);
-          labels.push_back(t.labels_ms);
-          total.push_back(t.total_ms);
-        }
-        const double target_ms = size <= 128 ? 100.0 : 750.0;
-        const std::string grid = std::to_string(result.grid_dims.x()) + "x" +
-                                 std::to_string(result.grid_dims.y()) + "x" +
-                                 std::to_string(result.grid_dims.z());
-        if (format == "json") {
-          nlohmann::json row = {{"phantom", name},
-                                {"size", size},
-                                {"ok", result.ok},
-                                {"smooth_ms", median(smooth)},
-                                {"balloon_ms", median(balloon)},
-                                {"opening_ms", median(opening)},
-                                {"reconstruct_ms", median(reconstruct)},
-                                {"mesh_ms", median(mesh)},
-                                {"reinflate_ms", median(reinflate)},
-                                {"labels_ms", median(labels)},
-                                {"total_ms", median(total)},
-                                {"target_ms", target_ms},
-                                {"iterations", result.balloon_iterations},
-                                {"grid", grid}};
-          std::printf("%s\n", row.dump().c_str());
-        } else {
-          std::printf(
-              "| %s%s | %d³ | %.1f | %.1f | %.1f | %.1f | %.1f | %.1f | %.1f | %.1f | %s %.0f | %d "
-              "| %s |\n",
-              name.c_str(), result.ok ? "" : " (failed)", size, median(smooth), median(balloon),
-              median(opening), median(reconstruct), median(mesh), median(reinflate), median(labels),
-              median(total), median(total) <= target_ms ? "≤" : "> (missed)", target_ms,
-              result.balloon_iterations, grid.c_str());
-        }
+        bench_case(name, size, repeat, fresh_buffers, format);
         std::fflush(stdout);
       }
   } catch (const std::exception& e) {
