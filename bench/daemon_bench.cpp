@@ -73,10 +73,8 @@ double quantile(std::vector<double> v, double q) {
   return v[i];
 }
 
-}  // namespace
-
-int main(int argc, char** argv) {
-  Args a;
+// The command line into `a`; false (after one line on stderr) for an unknown option.
+bool parse_args(int argc, char** argv, Args& a) {
   for (int i = 1; i + 1 < argc; i += 2) {
     const std::string k = argv[i], v = argv[i + 1];
     if (k == "--size")
@@ -97,19 +95,16 @@ int main(int argc, char** argv) {
       a.json_out = v;
     else {
       std::fprintf(stderr, "daemon_bench: unknown option %s\n", k.c_str());
-      return 2;
+      return false;
     }
   }
-  const fs::path work = a.work;
-  fs::remove_all(work);
-  fs::create_directories(work);
+  return true;
+}
 
-  // 1. The recording: a breathing phantom stream, as the simulator probe would send it.
-  sonomesh::sim::PhantomSourceOptions options;
-  options.spec.phantom = a.phantom;
-  options.spec.size_vox = a.size;
-  options.rate_hz = a.rate;
-  const fs::path recording = work / "stream.usv";
+// A breathing phantom stream recorded as the simulator probe would send it; false if a volume
+// cannot be encoded.
+bool write_recording(const Args& a, const sonomesh::sim::PhantomSourceOptions& options,
+                     const fs::path& recording) {
   const auto t_rec = Clock::now();
   {
     std::ofstream out(recording, std::ios::binary);
@@ -118,7 +113,7 @@ int main(int argc, char** argv) {
       const auto bytes = sonomesh::acquire::encode_volume_record(raw);
       if (!bytes) {
         std::fprintf(stderr, "daemon_bench: cannot encode volume %d\n", k);
-        return 1;
+        return false;
       }
       out.write(reinterpret_cast<const char*>(bytes->data()),
                 static_cast<std::streamsize>(bytes->size()));
@@ -129,10 +124,13 @@ int main(int argc, char** argv) {
   }
   std::fprintf(stderr, "daemon_bench: recorded %d volumes of %d^3 in %.1f s\n", a.count, a.size,
                std::chrono::duration<double>(Clock::now() - t_rec).count());
-  sonomesh::sim::PhantomSpec spec = options.spec;
-  const auto seed = sonomesh::sim::make_phantom(spec).seed_mm;
 
-  // 2. Probe and daemon.
+  return true;
+}
+
+// Probe-sim replays the recording to `sonomeshd run`, which is timed; false if it fails.
+bool run_daemon(const Args& a, const fs::path& work, const fs::path& recording,
+                const sonomesh::volume::Vec3f& seed, double& wall_s, rusage& usage) {
   const fs::path sock = work / "probe.sock";
   const pid_t probe = spawn({a.probe_sim, "serve", "--replay", recording.string(), "--listen",
                              "unix:" + sock.string(), "--rate", std::to_string(a.rate)},
@@ -147,21 +145,24 @@ int main(int argc, char** argv) {
                               (work / "out").string(), "--http", "off", "--seed-mm", seed_text},
                              work / "daemon.log");
   int status = 0;
-  rusage usage{};
   if (wait4(daemon, &status, 0, &usage) != daemon) {
     std::perror("daemon_bench: wait4");
-    return 1;
+    return false;
   }
-  const double wall_s = std::chrono::duration<double>(Clock::now() - t0).count();
+  wall_s = std::chrono::duration<double>(Clock::now() - t0).count();
   ::kill(probe, SIGTERM);
   waitpid(probe, nullptr, 0);
   if (!WIFEXITED(status) || WEXITSTATUS(status) != 0) {
     std::fprintf(stderr, "daemon_bench: sonomeshd failed (see %s)\n",
                  (work / "daemon.log").c_str());
-    return 1;
+    return false;
   }
 
-  // 3. The journal.
+  return true;
+}
+
+// The journal's counts, latencies and stage times, printed as JSON and one summary line.
+void report_journal(const Args& a, const fs::path& work, double wall_s, const rusage& usage) {
   std::map<std::string, int> counts;
   std::vector<double> latency;
   std::vector<double> overhead;  // latency minus the pipeline: waiting, hand-over, writing, fsync
@@ -212,5 +213,26 @@ int main(int argc, char** argv) {
       usage.ru_maxrss / 1024.0,
       (processed == a.count && quantile(latency, 0.95) <= 150) ? "targets met" : "targets NOT met");
   if (!a.json_out.empty()) std::ofstream(a.json_out) << report.dump(2) << "\n";
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  Args a;
+  if (!parse_args(argc, argv, a)) return 2;
+  const fs::path work = a.work;
+  fs::remove_all(work);
+  fs::create_directories(work);
+  sonomesh::sim::PhantomSourceOptions options;
+  options.spec.phantom = a.phantom;
+  options.spec.size_vox = a.size;
+  options.rate_hz = a.rate;
+  const fs::path recording = work / "stream.usv";
+  if (!write_recording(a, options, recording)) return 1;
+  const auto seed = sonomesh::sim::make_phantom(options.spec).seed_mm;
+  double wall_s = 0;
+  rusage usage{};
+  if (!run_daemon(a, work, recording, seed, wall_s, usage)) return 1;
+  report_journal(a, work, wall_s, usage);
   return 0;
 }
