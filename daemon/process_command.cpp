@@ -1,6 +1,6 @@
 // `sonomeshd process INPUT --seed-index I,J,K | --seed-mm X,Y,Z --mesh OUT.ply [--labels OUT.nrrd]
-//  [--report OUT.json] [--balloon OUT.ply] [--vdb OUT.vdb] [--target dark|bright|auto]`: one
-//  volume through the pipeline.
+//  [--report OUT.json] [--balloon OUT.ply] [--vdb OUT.vdb] [--target dark|bright|auto]
+//  [--config FILE.toml]`: one volume through the pipeline.
 #include <unistd.h>
 
 #include <array>
@@ -15,6 +15,7 @@
 
 #include "daemon/commands.h"
 #include "daemon/internal/outputs.h"
+#include "daemon/internal/run_config.h"
 #include "daemon/pipeline.h"
 
 namespace sonomesh::daemon {
@@ -30,8 +31,10 @@ struct ProcessArgs {
   std::string input;
   std::string seed_index, seed_mm;
   std::string mesh, labels, report, balloon, vdb;
+  std::string config;               // a run configuration whose pipeline tables apply (optional)
   bool labels_description = false;  // an ITK-SNAP label description beside the labels
   TargetPolarity target = TargetPolarity::Dark;
+  bool target_given = false;  // --target overrides the configuration's pipeline.target
 };
 
 int fail(int code, const std::string& message) {
@@ -149,8 +152,12 @@ int run_process(const ProcessArgs& args) {
   }
   if (auto problem = check_seed(input, seed_mm, args.target)) return fail(kFailed, *problem);
 
-  PipelineConfig config;
-  config.target = args.target;
+  RunConfig run_config;
+  if (!args.config.empty())
+    if (auto problem = load_config_file(args.config, run_config))
+      return fail(kBadArguments, *problem);
+  PipelineConfig config = run_config.pipeline;
+  if (args.target_given || args.config.empty()) config.target = args.target;
   config.want_labels = true;  // also needed for the deepest interior point in the report
   config.want_indicator = !args.vdb.empty();
   const PipelineResult result = run_pipeline(input, seed_mm, config);
@@ -190,13 +197,19 @@ void add_process_command(CLI::App& app, int& exit_code) {
   cmd->add_option("--balloon", args->balloon,
                   "Output balloon mesh with per-vertex stop reasons (PLY)");
   cmd->add_option("--vdb", args->vdb, "Output indicator function (OpenVDB)");
-  cmd->add_option("--target", args->target, "Target polarity: dark (default), bright, auto")
-      ->transform(CLI::CheckedTransformer(
-          std::map<std::string, TargetPolarity>{{"dark", TargetPolarity::Dark},
-                                                {"bright", TargetPolarity::Bright},
-                                                {"auto", TargetPolarity::Auto}},
-          CLI::ignore_case));
-  cmd->callback([args, &exit_code] { exit_code = run_process(*args); });
+  cmd->add_option("--config", args->config,
+                  "Run configuration (TOML); its [pipeline] tables apply, --target overrides");
+  auto* target =
+      cmd->add_option("--target", args->target, "Target polarity: dark (default), bright, auto");
+  target->transform(CLI::CheckedTransformer(
+      std::map<std::string, TargetPolarity>{{"dark", TargetPolarity::Dark},
+                                            {"bright", TargetPolarity::Bright},
+                                            {"auto", TargetPolarity::Auto}},
+      CLI::ignore_case));
+  cmd->callback([args, target, &exit_code] {
+    args->target_given = target->count() > 0;
+    exit_code = run_process(*args);
+  });
 }
 
 }  // namespace sonomesh::daemon

@@ -69,6 +69,15 @@ struct BalloonOptions {
   // (both means carry the same attenuation and shadow). A speckle grain is one bump of Ψ_cost; it
   // is not a brighter region. 0 = off (the paper's rule alone): the default, see docs/stopping.md.
   float region_fraction = 0.0f;
+  // Departure (issue 15): the level stop. A vertex stops where the image ahead of it is a
+  // brighter region, not one bright grain: the means over crosses of samples 1-3 and 4-6 voxels
+  // ahead both above the wall level, the target's level plus level_stop_fraction of the way to
+  // the tissue's (or, where the mean behind is darker, that ratio over it); it then moves to the
+  // level's crossing. Speckle raises one grain at a time, a wall the region beyond it. With it
+  // on, Ψ_cost's stop stands only before a thin bright line or sheet (a needle) and in a
+  // shadow, and a vertex with the wall on both sides across its normal (a gap, a needle's
+  // shadow sheet) stops. 0 = off, the default (docs/stopping.md has why).
+  float level_stop_fraction = 0.0f;
   float tau_curv = 1.2f;  // τ_curv: mean H(PQ)/|PQ| over P's edges (0 flat, 2 folded)
   // A marked voxel is "the other side" below this cosine between its front's normal and P's.
   float self_intersection_cos = -0.5f;

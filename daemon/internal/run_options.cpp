@@ -258,6 +258,9 @@ std::vector<OptionSpec> balloon_options() {
                   BAL(snap_min_slope)));
   o.push_back(num(t, "region_fraction", "", closed(0, 0.99),
                   "region term: move on while ahead looks inside; 0 off", BAL(region_fraction)));
+  o.push_back(num(t, "level_stop_fraction", "", closed(0, 0.99),
+                  "level stop: stop where the region ahead is the wall; 0 off",
+                  BAL(level_stop_fraction)));
   o.push_back(num(t, "tau_curv", "", above(0, 2), "curvature stop threshold", BAL(tau_curv)));
   o.push_back(num(t, "self_intersection_cos", "", closed(-1, 1),
                   "cosine of the self-intersection test", BAL(self_intersection_cos)));

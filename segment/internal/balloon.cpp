@@ -52,20 +52,22 @@ std::string refusal(const SeedRegion& seed) {
 // mid point). The climb backstop (how far the image at P has risen above the darkest level on
 // its path) stops a vertex that got through a wall with a low Ψ_cost before it runs on.
 CostRule cost_rule(const SeedRegion& seed, const CostScale& scale, const BalloonOptions& options,
-                   float vox_mm) {
+                   float vox_mm, const StepKernel& box) {
   const float contrast = seed.tissue_level - seed.level;
   auto climb_to = [&](float fraction) {
     return scale.map(seed.level + fraction * contrast) - scale.map(seed.level);
   };
   const float tau_cost =
       options.tau_cost > 0.0f ? options.tau_cost : climb_to(options.tau_cost_fraction);
-  return CostRule{.scale = scale,
-                  .tau = tau_cost,
-                  .tau_climb = std::max(tau_cost, climb_to(options.climb_backstop_fraction)),
-                  .window_mm = options.cost_window_vox * vox_mm,
-                  .noise_per_mm = options.noise_allowance ? seed.noise_rise_per_mm : 0.0f,
-                  .per_axis = options.rise_per_axis,
-                  .region = region_veto(options, vox_mm, seed)};
+  return CostRule{
+      .scale = scale,
+      .tau = tau_cost,
+      .tau_climb = std::max(tau_cost, climb_to(options.climb_backstop_fraction)),
+      .window_mm = options.cost_window_vox * vox_mm,
+      .noise_per_mm = options.noise_allowance ? seed.noise_rise_per_mm : 0.0f,
+      .per_axis = options.rise_per_axis,
+      .region = region_veto(options, vox_mm, seed),
+      .level = level_stop(options, vox_mm, seed.level, seed.tissue_level, box.box_lo, box.box_hi)};
 }
 
 void check_seed_inside(const volume::Volume& smoothed, const Vec3f& seed_mm) {
@@ -100,11 +102,11 @@ struct Prelude {
     stats.tissue_level = seed.tissue_level;
     error = refusal(seed);
     if (!error.empty()) return;
-    cost = cost_rule(seed, scale, options, vox_mm);
+    const StepKernel box(options, smoothed, vox_mm);
+    cost = cost_rule(seed, scale, options, vox_mm, box);
     stats.noise_rise_per_mm = seed.noise_rise_per_mm;
     stats.tau_cost_used = cost.tau;
     stats.tau_climb_used = cost.tau_climb;
-    const StepKernel box(options, smoothed, vox_mm);
     snap = wall_snap(options, vox_mm, seed.tissue_level, box.box_lo, box.box_hi);
   }
 

@@ -12,6 +12,8 @@ namespace sonomesh::segment::internal {
 namespace {
 
 constexpr int kNoVoxel = std::numeric_limits<int>::min();
+// The level stop fires with the wall's near cross 1-3 voxels ahead: its crossing lies within 4.
+constexpr float kLevelSnapAheadVox = 4.0f;
 
 // A leak (the balloon escaping through a gap) shows as more vertices than a surface of the
 // volume's bounding-box area (times max_area_fraction) needs at the target edge length.
@@ -190,9 +192,11 @@ bool BalloonEvolution::advance_vertex(std::uint32_t v, const FrontGrid::Reader& 
     return false;
   }
   bool stopped = false;
-  const float t = cost_.step(sampler_, p, d, n, a_.cost[v], a_.floor_level[v], a_.path[v], stopped);
+  float level_wall = 0.0f;
+  const float t =
+      cost_.step(sampler_, p, d, n, a_.cost[v], a_.floor_level[v], a_.path[v], stopped, level_wall);
   a_.next_pos[v] = p + t * d;
-  settle(v, n, stopped, target_ijk, target_in_volume, reader);
+  settle(v, n, stopped, level_wall, target_ijk, target_in_volume, reader);
   if (stopped) a_.reason[v] = StopReason::Boundary;
   return !stopped;
 }
@@ -200,11 +204,14 @@ bool BalloonEvolution::advance_vertex(std::uint32_t v, const FrontGrid::Reader& 
 // After the step: a stopped vertex snaps to the wall unless that takes it into the other side
 // of the balloon (the snap must not pass the test that guards every step); the vertex marks A_t
 // again if it ends in a new voxel.
-void BalloonEvolution::settle(std::uint32_t v, const Vec3f& n, bool stopped,
+void BalloonEvolution::settle(std::uint32_t v, const Vec3f& n, bool stopped, float level_wall,
                               const Vec3i& target_ijk, bool target_in_volume,
                               const FrontGrid::Reader& reader) {
   if (stopped) {
-    const Vec3f snapped = snap_.apply(sampler_, a_.next_pos[v], n);
+    const Vec3f snapped =
+        level_wall > 0.0f ? cost_.level.snap(sampler_, a_.next_pos[v], n, level_wall,
+                                             kLevelSnapAheadVox * smoothed_.spacing_mm().minCoeff())
+                          : snap_.apply(sampler_, a_.next_pos[v], n);
     Vec3i snapped_ijk;
     if (!marks_.voxel(snapped, snapped_ijk) ||
         !FrontMarks::other_side(reader, snapped_ijk, n, options_.self_intersection_cos))

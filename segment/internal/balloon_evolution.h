@@ -59,8 +59,8 @@ class BalloonEvolution {
   int iterate();
   bool advance_vertex(std::uint32_t v, const FrontGrid::Reader& reader);
   void ring_sums(std::uint32_t v, const Vec3f& p, Vec3f& centroid, float& curvature) const;
-  void settle(std::uint32_t v, const Vec3f& n, bool stopped, const Vec3i& target_ijk,
-              bool target_in_volume, const FrontGrid::Reader& reader);
+  void settle(std::uint32_t v, const Vec3f& n, bool stopped, float level_wall,
+              const Vec3i& target_ijk, bool target_in_volume, const FrontGrid::Reader& reader);
   void compute_normals();
   void mark_front();
   void stage_samples(std::uint32_t v, const FrontGrid::Reader& reader);

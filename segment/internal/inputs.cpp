@@ -46,6 +46,8 @@ std::string validate(const BalloonOptions& o) {
     return "climb_backstop_fraction must be in (0, 1]";
   if (!(o.region_fraction >= 0.0f && o.region_fraction < 1.0f))
     return "region_fraction must be in [0, 1) (0 = off)";
+  if (!(o.level_stop_fraction >= 0.0f && o.level_stop_fraction < 1.0f))
+    return "level_stop_fraction must be in [0, 1) (0 = off)";
   if (!(o.tau_curv > 0.0f)) return "tau_curv must be > 0";
   if (!(o.snap_back_vox >= 0.0f) || !(o.snap_ahead_vox >= 0.0f) ||
       !(o.snap_back_vox + o.snap_ahead_vox <= 8.0f))

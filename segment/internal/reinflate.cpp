@@ -103,7 +103,9 @@ Reinflation::Reinflation(const volume::Volume& smoothed, const volume::Gradient&
       .tau_climb = first_pass.tau_climb_used,
       .window_mm = options.cost_window_vox * vox_mm,
       .noise_per_mm = options.noise_allowance ? first_pass.noise_rise_per_mm : 0.0f,
-      .region = region_veto(options, vox_mm, first_pass.seed_level, first_pass.tissue_level)};
+      .region = region_veto(options, vox_mm, first_pass.seed_level, first_pass.tissue_level),
+      .level = level_stop(options, vox_mm, first_pass.seed_level, first_pass.tissue_level,
+                          kernel_.box_lo, kernel_.box_hi)};
   snap_ = wall_snap(options, vox_mm, first_pass.tissue_level, kernel_.box_lo, kernel_.box_hi);
   stats_.seed_level = first_pass.seed_level;
   stats_.tissue_level = first_pass.tissue_level;
@@ -155,11 +157,14 @@ void Reinflation::advance_vertex(std::uint32_t v) {
     return;
   }
   bool stopped = false;
-  const float t = cost_.step(sampler_, p, d, n, cost_of_[v], floor_of_[v], path_of_[v], stopped);
+  float level_wall = 0.0f;
+  const float t =
+      cost_.step(sampler_, p, d, n, cost_of_[v], floor_of_[v], path_of_[v], stopped, level_wall);
   // (Snapped no further ahead than the move bound allows.)
-  next_pos_[v] =
-      stopped ? snap_.apply(sampler_, p + t * d, n, std::max(0.0f, max_move_mm_ - path_of_[v]))
-              : p + t * d;
+  const float ahead_mm = std::max(0.0f, max_move_mm_ - path_of_[v]);
+  next_pos_[v] = !stopped         ? p + t * d
+                 : level_wall > 0 ? cost_.level.snap(sampler_, p + t * d, n, level_wall, ahead_mm)
+                                  : snap_.apply(sampler_, p + t * d, n, ahead_mm);
   if (stopped)
     reason_[v] = StopReason::Boundary;
   else if (path_of_[v] >= max_move_mm_)

@@ -3,6 +3,7 @@
 
 #include <Eigen/Geometry>
 #include <array>
+#include <limits>
 
 namespace sonomesh::segment::internal {
 
@@ -49,26 +50,133 @@ Vec3f WallSnap::apply(const ImageSampler& sampler, const Vec3f& p, const Vec3f& 
   return q.cwiseMax(box_lo).cwiseMin(box_hi);
 }
 
-// A cross of five samples (on the normal and ±1 voxel across it) at 1, 2 and 3 voxels ahead and
-// behind: 15 samples each side average out a grain, and ahead of a wall they lie in the tissue.
-// The ratio alone would let a vertex that got past a wall run on in the tissue (ahead and behind
-// alike there); the grey level alone would let it through a wall in a shadow. A sample brighter
-// than the tissue on the normal is a thin bright structure (a needle), which a grain is not.
+NormalCross::NormalCross(const Vec3f& normal, float step) : n(normal), step_mm(step) {
+  const Vec3f helper = std::abs(n.x()) < 0.9f ? Vec3f::UnitX() : Vec3f::UnitY();
+  u = n.cross(helper).normalized() * step_mm;
+  w = n.cross(u).normalized() * step_mm;
+}
+
+float NormalCross::mean(const ImageSampler& sampler, const Vec3f& p, int k0, int k1) const {
+  float sum = 0.0f;
+  for (int k = k0; k <= k1; ++k) {
+    const Vec3f c = p + (static_cast<float>(k) * step_mm) * n;
+    sum += sampler.value(c) + sampler.value(c + u) + sampler.value(c - u) + sampler.value(c + w) +
+           sampler.value(c - w);
+  }
+  return sum / static_cast<float>(5 * (k1 - k0 + 1));
+}
+
+// A cross of five samples at 1, 2 and 3 voxels ahead and behind: 15 samples each side average
+// out a grain, and ahead of a wall they lie in the tissue. The ratio alone would let a vertex
+// that got past a wall run on in the tissue (ahead and behind alike there); the grey level alone
+// would let it through a wall in a shadow. A sample brighter than the tissue on the normal is a
+// thin bright structure (a needle), which a grain is not.
 bool RegionVeto::still_inside(const ImageSampler& sampler, const Vec3f& p, const Vec3f& n) const {
   if (ratio <= 0.0f) return false;
-  const Vec3f helper = std::abs(n.x()) < 0.9f ? Vec3f::UnitX() : Vec3f::UnitY();
-  const Vec3f u = n.cross(helper).normalized() * step_mm, w = n.cross(u);
-  const std::array<Vec3f, 5> cross = {Vec3f::Zero(), u, -u, w, -w};
-  float ahead = 0.0f, behind = 0.0f;
   for (int k = 1; k <= 3; ++k)
-    for (const Vec3f& c : cross) {
-      const Vec3f along = (static_cast<float>(k) * step_mm) * n;
-      const float value = sampler.value(p + along + c);
-      if (c == Vec3f::Zero() && value > peak) return false;
-      ahead += value;
-      behind += sampler.value(p - along + c);
-    }
-  return ahead < ratio * behind && ahead < 15.0f * level;
+    if (sampler.value(p + (static_cast<float>(k) * step_mm) * n) > peak) return false;
+  const NormalCross cross(n, step_mm);
+  const float ahead = cross.mean(sampler, p, 1, 3), behind = cross.mean(sampler, p, -3, -1);
+  return ahead < ratio * behind && ahead < level;
+}
+
+// Most vertices are far from a wall: three samples on the normal ahead and behind decide that
+// before the crosses are read (below this fraction of the wall level they never clear it).
+constexpr float kPreTest = 0.8f;
+// How far along a thin bright structure bright_ahead looks (voxels).
+constexpr float kLineReachVox = 3.0f;
+// A channel: wall on both sides of the vertex, kChannelRadiusVox away across its normal.
+constexpr float kChannelRadiusVox = 2.5f;
+// Behind a vertex darker than this fraction of the target's level is a shadow.
+constexpr float kShadowFraction = 0.75f;
+
+// Both the near and the far cross must clear the wall level: a grain brightens one of them, a
+// wall both.
+bool LevelStop::wall_ahead(const ImageSampler& sampler, const Vec3f& p, const Vec3f& n,
+                           float& wall_level) const {
+  float ahead = 0.0f, behind = 0.0f;
+  for (int k = 1; k <= 3; ++k) {
+    const Vec3f along = (static_cast<float>(k) * step_mm) * n;
+    ahead += sampler.value(p + along);
+    behind += sampler.value(p - along);
+  }
+  if (ahead < kPreTest * std::min(3.0f * level, ratio * behind)) return false;
+  const NormalCross cross(n, step_mm);
+  const float near = cross.mean(sampler, p, 1, 3);
+  wall_level = std::min(level, ratio * cross.mean(sampler, p, -3, -1));
+  if (near <= wall_level || cross.mean(sampler, p, 4, 6) <= wall_level) {
+    wall_level = 0.0f;
+    return false;
+  }
+  return true;
+}
+
+// A thin bright structure is a line or a sheet: from its brightest point on the normal, the
+// image stays above half its height (over the target's level) 3 voxels away on both sides along
+// at least one direction across the normal. A speckle grain that bright is round and smaller.
+bool LevelStop::bright_ahead(const ImageSampler& sampler, const Vec3f& p, const Vec3f& n) const {
+  Vec3f top = p;
+  float top_value = -std::numeric_limits<float>::max();
+  for (int k = 1; k <= 6; ++k) {
+    const Vec3f q = p + (0.5f * static_cast<float>(k) * step_mm) * n;
+    const float value = sampler.value(q);
+    if (value > top_value) top_value = value, top = q;
+  }
+  if (top_value <= peak) return false;
+  const float half = 0.5f * (top_value + target);
+  const NormalCross cross(n, kLineReachVox * step_mm);
+  const std::array<Vec3f, 4> across = {cross.u, cross.w, (cross.u + cross.w) * 0.7071f,
+                                       (cross.u - cross.w) * 0.7071f};
+  for (const Vec3f& a : across)
+    if (sampler.value(top + a) > half && sampler.value(top - a) > half) return true;
+  return false;
+}
+
+bool LevelStop::in_shadow(const ImageSampler& sampler, const Vec3f& p, const Vec3f& n) const {
+  return NormalCross(n, step_mm).mean(sampler, p, -3, -1) < kShadowFraction * target;
+}
+
+// Pairs of samples kChannelRadiusVox across the normal on either side: in the open target they
+// lie at the vertex's own depth, inside; in a channel or a slab narrower than twice that (a
+// needle's shadow is a sheet) both lie in the wall.
+bool LevelStop::in_channel(const ImageSampler& sampler, const Vec3f& p, const Vec3f& n) const {
+  const NormalCross cross(n, kChannelRadiusVox * step_mm);
+  const std::array<Vec3f, 4> across = {cross.u, cross.w, (cross.u + cross.w) * 0.7071f,
+                                       (cross.u - cross.w) * 0.7071f};
+  for (const Vec3f& a : across)
+    if (sampler.value(p + a) > level && sampler.value(p - a) > level) return true;
+  return false;
+}
+
+// Quarter-voxel steps along the normal; the vertex ends half a step before the first cross
+// above the wall level, the level's crossing to within an eighth of a voxel.
+Vec3f LevelStop::snap(const ImageSampler& sampler, const Vec3f& p, const Vec3f& n, float wall_level,
+                      float ahead_mm) const {
+  const NormalCross cross(n, step_mm);
+  const float quarter_mm = 0.25f * step_mm;
+  const int steps = static_cast<int>(std::floor(ahead_mm / quarter_mm + 1e-3f));
+  for (int j = 0; j <= steps; ++j) {
+    const Vec3f q = p + (static_cast<float>(j) * quarter_mm) * n;
+    if (cross.mean(sampler, q, 0, 0) <= wall_level) continue;
+    const Vec3f at = j == 0 ? p : Vec3f(q - (0.5f * quarter_mm) * n);
+    return at.cwiseMax(box_lo).cwiseMin(box_hi);
+  }
+  return p;
+}
+
+LevelStop level_stop(const BalloonOptions& o, float vox_mm, float seed_level, float tissue_level,
+                     const Vec3f& box_lo, const Vec3f& box_hi) {
+  LevelStop s;
+  if (o.level_stop_fraction <= 0.0f || !(seed_level > 0.0f) || !(tissue_level > seed_level))
+    return s;
+  s.level = seed_level + o.level_stop_fraction * (tissue_level - seed_level);
+  s.ratio = s.level / seed_level;
+  s.peak = tissue_level;
+  s.target = seed_level;
+  s.step_mm = vox_mm;
+  s.box_lo = box_lo;
+  s.box_hi = box_hi;
+  return s;
 }
 
 RegionVeto region_veto(const BalloonOptions& o, float vox_mm, float seed_level,

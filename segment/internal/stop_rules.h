@@ -39,6 +39,52 @@ inline RegionVeto region_veto(const BalloonOptions& o, float vox_mm, const SeedR
   return region_veto(o, vox_mm, seed.level, seed.tissue_level);
 }
 
+/// Means over crosses of five samples (on the normal and ±1 voxel across it) at whole voxels
+/// along the normal n from p: a grain averages out over the cross, a wall does not.
+struct NormalCross {
+  Vec3f n, u, w;
+  float step_mm;
+
+  NormalCross(const Vec3f& normal, float step);
+  /// Mean of the crosses at k·step_mm along n for k in [k0, k1] (negative: behind p).
+  float mean(const ImageSampler& sampler, const Vec3f& p, int k0, int k1) const;
+};
+
+/// The level stop (BalloonOptions::level_stop_fraction): the region ahead of a vertex is the
+/// wall when the crosses 1-3 and 4-6 voxels ahead are both above the wall level, which is
+/// `level` or, where the mean behind the vertex is darker than the target's level (a shadow, the
+/// deep end of an attenuated beam), `ratio` times that mean.
+struct LevelStop {
+  float level = 0.0f;  // the target's level plus the fraction of its contrast; 0 = off
+  float ratio = 0.0f;  // level / the target's level
+  float step_mm = 0.0f;
+  Vec3f box_lo, box_hi;  // the volume's usable box
+
+  float peak = 0.0f;    // bright_ahead: the least height of a thin bright structure (a needle)
+  float target = 0.0f;  // the target's level
+
+  bool on() const { return level > 0.0f; }
+  /// Whether a thin bright structure (a line or a sheet) lies on the normal within 3 voxels
+  /// ahead of p: the one wall the level stop misses (its far cross lies beyond it), so Ψ_cost's
+  /// stop stands there.
+  bool bright_ahead(const ImageSampler& sampler, const Vec3f& p, const Vec3f& n) const;
+  /// Whether the wall is ahead of p; sets the wall level that applies there.
+  bool wall_ahead(const ImageSampler& sampler, const Vec3f& p, const Vec3f& n,
+                  float& wall_level) const;
+  /// Whether the image behind p is well below the target's level (a shadow): there the
+  /// relative Ψ_cost, which scales with the shadow, decides.
+  bool in_shadow(const ImageSampler& sampler, const Vec3f& p, const Vec3f& n) const;
+  /// Whether p lies in a channel through the wall (a shadow's column behind a needle, a gap):
+  /// most of a ring across the normal around p is above the level.
+  bool in_channel(const ImageSampler& sampler, const Vec3f& p, const Vec3f& n) const;
+  /// Where the cross along n first rises above wall_level, within `ahead_mm` (p if nowhere).
+  Vec3f snap(const ImageSampler& sampler, const Vec3f& p, const Vec3f& n, float wall_level,
+             float ahead_mm) const;
+};
+
+LevelStop level_stop(const BalloonOptions& o, float vox_mm, float seed_level, float tissue_level,
+                     const Vec3f& box_lo, const Vec3f& box_hi);
+
 /// Ψ_cost with its thresholds (method.md §2 and the departures BalloonOptions names).
 struct CostRule {
   CostScale scale;
@@ -48,6 +94,7 @@ struct CostRule {
   float noise_per_mm = 0.0f;  // 0: no noise allowance
   bool per_axis = false;      // BalloonOptions::rise_per_axis
   RegionVeto region;          // BalloonOptions::region_fraction
+  LevelStop level;            // BalloonOptions::level_stop_fraction
 
   /// Advances one vertex by the Euler step d from p: its Ψ_cost, darkest level and path. Returns
   /// the fraction of d to take (1 unless it stops inside the step) and sets `stopped`.
@@ -81,14 +128,28 @@ struct CostRule {
   }
 
   /// advance(), then the region term: a stop while the image ahead along the normal n still
-  /// looks like the inside is overruled and the vertex takes the whole step.
+  /// looks like the inside is overruled and the vertex takes the whole step. With the level stop
+  /// on, Ψ_cost's stop stands only before a thin bright structure, and the level stop decides
+  /// the rest; it sets `level_wall` (0 when it did not fire: the stop, if any, is Ψ_cost's).
   float step(const ImageSampler& sampler, const Vec3f& p, const Vec3f& d, const Vec3f& n,
-             float& cost, float& floor_level, float& path_mm, bool& stopped) const {
-    const float t = advance(sampler, p, d, cost, floor_level, path_mm, stopped);
-    if (!stopped || !region.still_inside(sampler, p + t * d, n)) return t;
-    stopped = false;
-    path_mm += (1.0f - t) * d.norm();
-    return 1.0f;
+             float& cost, float& floor_level, float& path_mm, bool& stopped,
+             float& level_wall) const {
+    level_wall = 0.0f;
+    float t = advance(sampler, p, d, cost, floor_level, path_mm, stopped);
+    if (stopped && (level.on() ? (!level.bright_ahead(sampler, p + t * d, n) &&
+                                  !level.in_shadow(sampler, p + t * d, n))
+                               : region.still_inside(sampler, p + t * d, n))) {
+      stopped = false;
+      path_mm += (1.0f - t) * d.norm();
+      t = 1.0f;
+    }
+    if (!stopped && level.on()) {
+      if (level.wall_ahead(sampler, p + t * d, n, level_wall))
+        stopped = true;
+      else if (level.in_channel(sampler, p + t * d, n))
+        stopped = true;
+    }
+    return t;
   }
 };
 

@@ -187,6 +187,28 @@ TEST_F(ProcessCommand, BadArgumentsAreOneLine) {
   expect_one_line_failure("", "subcommand");
 }
 
+// --config applies the run configuration's pipeline tables; --target overrides its target.
+TEST_F(ProcessCommand, ConfigFileSetsThePipeline) {
+  {
+    std::ofstream toml(dir_ / "few.toml");
+    toml << "[pipeline]\ntarget = \"bright\"\n[pipeline.balloon]\nmax_iterations = 3\n";
+  }
+  run("process " + path("torus.nrrd") + " --seed-index " + seed_index() + " --mesh " +
+      path("few.ply") + " --report " + path("few.json") + " --config " + path("few.toml") +
+      " --target dark");
+  std::ifstream in(dir_ / "few.json");
+  const nlohmann::json report = nlohmann::json::parse(in);
+  EXPECT_LE(report.at("balloon").at("iterations").get<int>(), 3);
+  EXPECT_EQ(report.at("target"), "dark");
+  {
+    std::ofstream toml(dir_ / "bad.toml");
+    toml << "[pipeline.balloon]\nlevel_stop_fraction = 2.0\n";
+  }
+  expect_one_line_failure("process " + path("torus.nrrd") + " --seed-index " + seed_index() +
+                              " --mesh " + path("bad.ply") + " --config " + path("bad.toml"),
+                          "level_stop_fraction");
+}
+
 TEST_F(ProcessCommand, HelpStillWorks) { EXPECT_EQ(run("process --help").exit_code, 0); }
 
 }  // namespace
