@@ -88,7 +88,7 @@ constexpr float kLineReachVox = 3.0f;
 // A channel: wall on both sides of the vertex, kChannelRadiusVox away across its normal.
 constexpr float kChannelRadiusVox = 2.5f;
 // Behind a vertex darker than this fraction of the target's level is a shadow.
-constexpr float kShadowFraction = 0.75f;
+constexpr float kShadowFraction = 0.5f;
 
 // Both the near and the far cross must clear the wall level: a grain brightens one of them, a
 // wall both.
@@ -143,8 +143,15 @@ bool LevelStop::in_channel(const ImageSampler& sampler, const Vec3f& p, const Ve
   const NormalCross cross(n, kChannelRadiusVox * step_mm);
   const std::array<Vec3f, 4> across = {cross.u, cross.w, (cross.u + cross.w) * 0.7071f,
                                        (cross.u - cross.w) * 0.7071f};
+  // Each side is a cross of five samples (on the side and a voxel along n and along n × a).
+  auto side = [&](const Vec3f& q, const Vec3f& a) {
+    const Vec3f along = step_mm * n, beside = step_mm * n.cross(a.normalized());
+    return (sampler.value(q) + sampler.value(q + along) + sampler.value(q - along) +
+            sampler.value(q + beside) + sampler.value(q - beside)) /
+           5.0f;
+  };
   for (const Vec3f& a : across)
-    if (sampler.value(p + a) > level && sampler.value(p - a) > level) return true;
+    if (side(p + a, a) > level && side(p - a, a) > level) return true;
   return false;
 }
 
