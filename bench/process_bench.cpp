@@ -7,7 +7,7 @@
 // the final mesh (positions and triangles) instead of timings: a refactoring must keep them.
 // One warm-up run per case (FFTW plans, page faults), then the median of --repeat runs per stage.
 // The runs reuse one PipelineBuffers, as the daemon's worker does; --fresh-buffers allocates the
-// smoothed volume and gradient anew per run, as a single `sonomeshd process` does.
+// smoothed volume anew per run, as a single `sonomeshd process` does.
 // Targets (DESIGN/issue 4): total <= 100 ms at 128³, <= 750 ms at 256³.
 #include <CLI/CLI.hpp>
 #include <algorithm>

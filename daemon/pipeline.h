@@ -124,12 +124,12 @@ struct PipelineResult {
 PipelineResult run_pipeline(const volume::Volume& input, const Vec3f& seed_mm,
                             const PipelineConfig& config, std::stop_token stop = {});
 
-/// What one caller keeps from volume to volume (the daemon's worker): the smoothed volume and its
-/// gradient, 16 bytes per voxel. Fresh ones are allocated and zero-filled for every volume, which
-/// at 256³ cost more than the smoothing itself.
+/// What one caller keeps from volume to volume (the daemon's worker): the smoothed volume, 4 bytes
+/// per voxel. A fresh one is allocated and zero-filled for every volume, which at 256³ costs about
+/// as much as the smoothing itself. (No gradient volumes: the balloon takes central differences
+/// of the smoothed volume where it samples.)
 struct PipelineBuffers {
   volume::Volume smoothed;
-  volume::Gradient gradient;
 };
 
 /// Same, smoothing into `buffers` (reused when the next volume has the same dimensions).

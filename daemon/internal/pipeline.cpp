@@ -103,7 +103,6 @@ void smooth_stage(const volume::Volume& input, const Vec3f& seed_mm, const Pipel
   volume::Volume working;
   const bool rewritten = internal::working_image(input, result.target, no_data, working);
   volume::smooth_gaussian(rewritten ? working : input, sigma_mm, buffers.smoothed);
-  volume::central_gradient(buffers.smoothed, buffers.gradient);
   result.timings.smooth_ms = ms_since(t);
 }
 
@@ -116,14 +115,13 @@ segment::BalloonResult balloon_stage(const PipelineBuffers& buffers, const Vec3f
   segment::BalloonResult balloon;
   if (warm) {
     balloon = segment::inflate_balloon_from(
-        buffers.smoothed, buffers.gradient, warm->balloon, seed_mm, config.balloon,
+        buffers.smoothed, warm->balloon, seed_mm, config.balloon,
         {.inset_mm = warm->inset_mm, .start_stop = warm->balloon_stop}, stop);
     result.warm_start = !balloon.start_unsafe;
     if (balloon.start_unsafe) result.start_reason = balloon.error;
   }
   if (!warm || balloon.start_unsafe)
-    balloon =
-        segment::inflate_balloon(buffers.smoothed, buffers.gradient, seed_mm, config.balloon, stop);
+    balloon = segment::inflate_balloon(buffers.smoothed, seed_mm, config.balloon, stop);
   result.timings.balloon_ms = ms_since(t);
   result.balloon = std::move(balloon.mesh);
   result.balloon_stop = std::move(balloon.stop);
@@ -176,8 +174,8 @@ void reinflate_stage(const PipelineBuffers& buffers, const PipelineConfig& confi
   if (!config.reinflate || !result.topology.manifold) return;
   const auto t = Clock::now();
   segment::BalloonResult second =
-      segment::reinflate(buffers.smoothed, buffers.gradient, result.mesh, result.balloon_stats,
-                         config.balloon, config.reinflate_pass, stop);
+      segment::reinflate(buffers.smoothed, result.mesh, result.balloon_stats, config.balloon,
+                         config.reinflate_pass, stop);
   result.timings.reinflate_ms = ms_since(t);
   if (stop.stop_requested()) return;
   result.mesh = std::move(second.mesh);
