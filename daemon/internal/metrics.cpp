@@ -129,7 +129,6 @@ std::vector<bool> boundary_of(const Volume& labels) {
 // on: cells lo + stride ⊙ c for c in [0, dims).
 struct Lattice {
   Vec3i lo, stride, dims;
-  std::size_t size() const { return static_cast<std::size_t>(dims.x()) * dims.y() * dims.z(); }
 };
 
 Lattice lattice_of(const Volume& field, const Vec3f& lo_mm, const Vec3f& hi_mm, float step_mm) {
