@@ -1,13 +1,15 @@
 // process_bench: per-stage time of the pipeline (daemon::run_pipeline, what `sonomeshd process`
 // and every daemon job run) on simulator phantoms of 128³ and 256³.
 //   process_bench [--sizes 128,256] [--phantoms cyst-needle,torus] [--repeat 5] [--format md|json]
-//                 [--fresh-buffers]
+//                 [--fresh-buffers] [--no-labels]
 //   process_bench --hash [--sizes 96,128] [--phantoms ...] [--threads 1,2]
 // --hash prints, per case, a 64-bit FNV-1a hash of the balloon (positions and stop reasons) and of
 // the final mesh (positions and triangles) instead of timings: a refactoring must keep them.
 // One warm-up run per case (FFTW plans, page faults), then the median of --repeat runs per stage.
 // The runs reuse one PipelineBuffers, as the daemon's worker does; --fresh-buffers allocates the
-// smoothed volume and gradient anew per run, as a single `sonomeshd process` does.
+// smoothed volume anew per run, as a single `sonomeshd process` does. --no-labels skips the label
+// volume (the daemon without an OpenIGTLink listener, `process` without --labels): `labels` is
+// then the deepest-point search alone.
 // Targets (DESIGN/issue 4): total <= 100 ms at 128³, <= 750 ms at 256³.
 #include <CLI/CLI.hpp>
 #include <algorithm>
@@ -72,10 +74,11 @@ double median(std::vector<double> values) {
 }  // namespace
 
 // One phantom at one size: `repeat` timed runs after a warm-up, their medians printed as a row.
-void bench_case(const std::string& name, int size, int repeat, bool fresh_buffers,
+void bench_case(const std::string& name, int size, int repeat, bool fresh_buffers, bool want_labels,
                 const std::string& format) {
   const sim::Phantom phantom = sim::make_phantom({.phantom = name, .size_vox = size});
-  const daemon::PipelineConfig config;
+  daemon::PipelineConfig config;
+  config.want_labels = want_labels;
   daemon::PipelineBuffers buffers;
   auto run = [&] {
     if (fresh_buffers) buffers = daemon::PipelineBuffers{};
@@ -132,13 +135,14 @@ int main(int argc, char** argv) {
   std::vector<std::string> phantoms{"sphere", "cyst-needle"};
   int repeat = 5;
   std::string format = "md";
-  bool fresh_buffers = false, hash = false;
+  bool fresh_buffers = false, hash = false, no_labels = false;
   std::vector<int> threads{1, 2};
   app.add_option("--sizes", sizes, "Volume edges (voxels)")->delimiter(',');
   app.add_option("--phantoms", phantoms, "Phantom names")->delimiter(',');
   app.add_option("--repeat", repeat, "Timed runs per case")->check(CLI::Range(1, 100));
   app.add_option("--format", format, "md or json")->check(CLI::IsMember({"md", "json"}));
   app.add_flag("--fresh-buffers", fresh_buffers, "Allocate the smoothing buffers per run");
+  app.add_flag("--no-labels", no_labels, "Skip the label volume (the deepest point only)");
   app.add_flag("--hash", hash, "Print balloon and mesh hashes instead of timings");
   app.add_option("--threads", threads, "Thread counts for --hash")->delimiter(',');
   try {
@@ -166,7 +170,7 @@ int main(int argc, char** argv) {
   try {
     for (const int size : sizes)
       for (const std::string& name : phantoms) {
-        bench_case(name, size, repeat, fresh_buffers, format);
+        bench_case(name, size, repeat, fresh_buffers, !no_labels, format);
         std::fflush(stdout);
       }
   } catch (const std::exception& e) {

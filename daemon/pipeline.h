@@ -46,12 +46,14 @@ struct PipelineConfig {
   /// (segment::reinflate): gives back what the reconstruction's smoothing takes from thin parts.
   bool reinflate = true;
   segment::ReinflateOptions reinflate_pass;
-  bool want_labels = true;      // label volume on the input grid (inside = 1)
+  bool want_labels = true;      // label volume on the input grid (inside = 1); seed tracking
+                                // does not need it (deepest_interior_mm comes from χ)
   bool want_indicator = false;  // the indicator function χ as a Float32 volume (for .vdb output)
 };
 
 /// Wall-clock time per stage in ms; `total` includes everything run_pipeline did. `labels` is the
-/// rasterization on the input grid plus the deepest-point search (not one of the paper's stages).
+/// deepest-point search plus, when labels are wanted, the rasterization on the input grid (not
+/// one of the paper's stages).
 struct StageTimings {
   double smooth_ms = 0, balloon_ms = 0, opening_ms = 0, reconstruct_ms = 0, mesh_ms = 0,
          reinflate_ms = 0, labels_ms = 0, total_ms = 0;
@@ -112,8 +114,9 @@ struct PipelineResult {
   StageTimings timings;
   std::optional<volume::Volume> labels;     // UInt8 on the input grid, inside = 1
   std::optional<volume::Volume> indicator;  // Float32 χ − iso on the reconstruction grid
-  /// The deepest point inside the result (maximum of the distance transform of the labels), for
-  /// the daemon's seed tracking. Only set when labels were computed.
+  /// The deepest point inside the result, for the daemon's seed tracking: the maximum of the
+  /// distance transform of χ > iso on the reconstruction grid, in the part around the seed
+  /// (internal::deepest_inside). Set whenever there is a surface, labels or not.
   std::optional<Vec3f> deepest_interior_mm;
 };
 
@@ -124,12 +127,12 @@ struct PipelineResult {
 PipelineResult run_pipeline(const volume::Volume& input, const Vec3f& seed_mm,
                             const PipelineConfig& config, std::stop_token stop = {});
 
-/// What one caller keeps from volume to volume (the daemon's worker): the smoothed volume and its
-/// gradient, 16 bytes per voxel. Fresh ones are allocated and zero-filled for every volume, which
-/// at 256³ cost more than the smoothing itself.
+/// What one caller keeps from volume to volume (the daemon's worker): the smoothed volume, 4 bytes
+/// per voxel. A fresh one is allocated and zero-filled for every volume, which at 256³ costs about
+/// as much as the smoothing itself. (No gradient volumes: the balloon takes central differences
+/// of the smoothed volume where it samples.)
 struct PipelineBuffers {
   volume::Volume smoothed;
-  volume::Gradient gradient;
 };
 
 /// Same, smoothing into `buffers` (reused when the next volume has the same dimensions).

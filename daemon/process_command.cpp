@@ -105,6 +105,17 @@ std::optional<std::string> write_outputs(const ProcessArgs& args, const Pipeline
   return std::nullopt;
 }
 
+// The configuration file's pipeline tables (defaults without one); --target overrides its
+// target.
+std::optional<std::string> pipeline_config(const ProcessArgs& args, PipelineConfig& config) {
+  RunConfig run_config;
+  if (!args.config.empty())
+    if (auto problem = load_config_file(args.config, run_config)) return problem;
+  config = run_config.pipeline;
+  if (args.target_given || args.config.empty()) config.target = args.target;
+  return std::nullopt;
+}
+
 int run_process(const ProcessArgs& args) {
   if (args.seed_index.empty() == args.seed_mm.empty())
     return fail(kBadArguments, "give exactly one of --seed-index I,J,K and --seed-mm X,Y,Z");
@@ -127,6 +138,8 @@ int run_process(const ProcessArgs& args) {
   for (const auto& [option, path] : outputs)
     if (auto problem = check_writable(option, path)) return fail(kFailed, *problem);
 
+  PipelineConfig config;
+  if (auto problem = pipeline_config(args, config)) return fail(kBadArguments, *problem);
   auto read = volume::read_volume(args.input);
   if (!read) return fail(kFailed, read.error->message);
   const volume::Volume& input = read.volume;
@@ -150,15 +163,9 @@ int run_process(const ProcessArgs& args) {
     seed_mm =
         internal::seed_world_to_grid_mm(input, Vec3f((*triple)[0], (*triple)[1], (*triple)[2]));
   }
-  if (auto problem = check_seed(input, seed_mm, args.target)) return fail(kFailed, *problem);
+  if (auto problem = check_seed(input, seed_mm, config.target)) return fail(kFailed, *problem);
 
-  RunConfig run_config;
-  if (!args.config.empty())
-    if (auto problem = load_config_file(args.config, run_config))
-      return fail(kBadArguments, *problem);
-  PipelineConfig config = run_config.pipeline;
-  if (args.target_given || args.config.empty()) config.target = args.target;
-  config.want_labels = true;  // also needed for the deepest interior point in the report
+  config.want_labels = !args.labels.empty();  // (the report's deepest point comes from χ)
   config.want_indicator = !args.vdb.empty();
   const PipelineResult result = run_pipeline(input, seed_mm, config);
 

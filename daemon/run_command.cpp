@@ -87,8 +87,9 @@ std::optional<std::string> effective_config(const RunFlags& f, RunConfig& config
   }
   if (f.o_igtl->count()) config.igtl_listen = f.igtl_listen;
   if (f.o_igtl_any->count()) config.igtl_any_address = f.igtl_any_address;
-  // The daemon needs the labels: seed tracking uses the deepest point inside the last result.
-  config.pipeline.want_labels = true;
+  // The labels go out as OpenIGTLink IMAGE sonomesh-labels only (seed tracking takes the deepest
+  // point from χ): without a listener they are not made.
+  config.pipeline.want_labels = !config.igtl_listen.empty();
   // --print-config also serves to start a configuration file: no source or output needed.
   return validate(config, !f.print_config);
 }

@@ -20,10 +20,11 @@ packages=(
   # daemon/
   libcli11-dev libtomlplusplus-dev nlohmann-json3-dev libspdlog-dev libfmt-dev libcpp-httplib-dev
   # daemon/: the OpenIGTLink server uses libopenigtlink-dev (above); the live page (slice
-  # PNGs, three.js served locally), systemd notify
-  libopencv-imgcodecs-dev libjs-three libsystemd-dev
-  # tests and benchmarks (HIL tests run the real libusb/V4L2 paths under umockdev)
-  libgtest-dev libgmock-dev libbenchmark-dev umockdev libumockdev-dev
+  # PNGs through libpng, three.js served locally), systemd notify
+  libpng-dev libjs-three libsystemd-dev
+  # tests and benchmarks (HIL tests run the real libusb/V4L2 paths under umockdev; the web
+  # tests decode the slice PNGs with imgcodecs)
+  libopencv-imgcodecs-dev libgtest-dev libgmock-dev libbenchmark-dev umockdev libumockdev-dev
   # the live page's browser test (headless, WebGL through SwiftShader)
   chromium
   # the sanitizer build and the libFuzzer targets (SONOMESH_SANITIZE / SONOMESH_FUZZ in test.sh)

@@ -142,16 +142,17 @@ struct BalloonResult {
 };
 
 /// Inflates the balloon from `seed_mm` in a volume the caller has already smoothed (method.md
-/// §0), with the central-difference gradient of that smoothed volume (same grid).
+/// §0). The image's gradient is the central-difference one of volume::central_gradient, taken
+/// where the balloon samples it (no gradient volumes: 12 bytes per voxel the balloon never reads
+/// away from its path).
 /// A seed that is not in a hypoechoic region (brighter than or as bright as its surroundings,
 /// e.g. on the needle or in tissue), or a balloon that leaks out of its target (leak bound),
 /// gives a result with `error` set and an empty mesh.
-/// @throws std::invalid_argument if `seed_mm` lies outside the volume, if the gradient's grid
-///         differs from the volume's, or for options out of range (h·μ > 0.5 vox, h·λ ∉ [0, 1],
+/// @throws std::invalid_argument if `seed_mm` lies outside the volume, or for options out of range
+/// (h·μ > 0.5 vox, h·λ ∉ [0, 1],
 ///         non-positive edge length).
-BalloonResult inflate_balloon(const volume::Volume& smoothed, const volume::Gradient& gradient,
-                              const Vec3f& seed_mm, const BalloonOptions& options = {},
-                              std::stop_token stop = {});
+BalloonResult inflate_balloon(const volume::Volume& smoothed, const Vec3f& seed_mm,
+                              const BalloonOptions& options = {}, std::stop_token stop = {});
 
 /// How a warm start moves the previous balloon inward before starting from it.
 struct WarmStartOptions {
@@ -170,9 +171,8 @@ struct WarmStartOptions {
 /// `seed_mm`, as in a cold start). A start that fails is not used: the result has
 /// `start_unsafe` and `error` set and an empty mesh. A_t starts empty (a withdrawn needle's
 /// tunnel is not carried from the old volume). Otherwise as inflate_balloon, same throws.
-BalloonResult inflate_balloon_from(const volume::Volume& smoothed, const volume::Gradient& gradient,
-                                   const Mesh& start_mesh, const Vec3f& seed_mm,
-                                   const BalloonOptions& options = {},
+BalloonResult inflate_balloon_from(const volume::Volume& smoothed, const Mesh& start_mesh,
+                                   const Vec3f& seed_mm, const BalloonOptions& options = {},
                                    const WarmStartOptions& warm = {}, std::stop_token stop = {});
 
 /// Limits of the second pass (reinflate).
@@ -191,14 +191,13 @@ struct ReinflateOptions {
 /// (rise_per_axis applies to the first pass only): each vertex starts with the cost of
 /// the climb from the seed level to where it stands, and one already above the wall's mid level
 /// stays. Stop reasons as for the balloon (IterationLimit: moved max_move_vox).
-/// @throws std::invalid_argument if `surface` is not closed and manifold, if the gradient is not
-///         Float32 on the volume's grid, or if `first_pass` has no seed statistics.
-BalloonResult reinflate(const volume::Volume& smoothed, const volume::Gradient& gradient,
-                        const Mesh& surface, const BalloonStats& first_pass,
-                        const BalloonOptions& options = {}, const ReinflateOptions& pass = {},
-                        std::stop_token stop = {});
+/// @throws std::invalid_argument if `surface` is not closed and manifold, or if `first_pass` has
+///         no seed statistics.
+BalloonResult reinflate(const volume::Volume& smoothed, const Mesh& surface,
+                        const BalloonStats& first_pass, const BalloonOptions& options = {},
+                        const ReinflateOptions& pass = {}, std::stop_token stop = {});
 
-/// Convenience: smooths `image` with a Gaussian of `sigma_mm`, takes its gradient, inflates.
+/// Convenience: smooths `image` with a Gaussian of `sigma_mm`, inflates.
 BalloonResult inflate_balloon(const volume::Volume& image, float sigma_mm, const Vec3f& seed_mm,
                               const BalloonOptions& options = {}, std::stop_token stop = {});
 

@@ -115,6 +115,8 @@ void LiveRunner::reload(const RunConfig& next) {
   keep(applied.http_address, previous.http_address);
   keep(applied.record_path, previous.record_path);
   keep(applied.igtl_listen, previous.igtl_listen);
+  // The labels follow the running OpenIGTLink server (run_command.cpp), not the file's.
+  applied.pipeline.want_labels = previous.pipeline.want_labels;
   if (restart_needed) {
     spdlog::warn(
         "config reload: source, out, http, igtl_listen and record_path changes need a "

@@ -3,8 +3,8 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
-#include <cstring>
 #include <limits>
+#include <optional>
 #include <stdexcept>
 #include <thread>
 
@@ -106,18 +106,6 @@ const std::vector<std::uint8_t>& label_data(const Volume& labels) {
   return labels.u8();
 }
 
-// Index of the first non-zero byte of row[0, n), n if none; eight bytes per step while they are 0.
-int first_nonzero(const std::uint8_t* row, int n) {
-  int i = 0;
-  for (; i + 8 <= n; i += 8) {
-    std::uint64_t word;
-    std::memcpy(&word, row + i, sizeof word);
-    if (word != 0) break;
-  }
-  while (i < n && row[i] == 0) ++i;
-  return i;
-}
-
 // Inside voxels with a 6-neighbour outside or on the border of the volume.
 std::vector<bool> boundary_of(const Volume& labels) {
   const Vec3i d = labels.dims();
@@ -137,6 +125,60 @@ std::vector<bool> boundary_of(const Volume& labels) {
   return boundary;
 }
 
+// Box of the field's cells, subsampled by `stride` per axis, that the deepest-point search runs
+// on: cells lo + stride ⊙ c for c in [0, dims).
+struct Lattice {
+  Vec3i lo, stride, dims;
+};
+
+Lattice lattice_of(const Volume& field, const Vec3f& lo_mm, const Vec3f& hi_mm, float step_mm) {
+  Lattice l;
+  const Vec3i last = field.dims() - Vec3i::Ones();
+  const Vec3f lo_u = field.mm_to_index(lo_mm), hi_u = field.mm_to_index(hi_mm);
+  Vec3i hi;
+  for (int a = 0; a < 3; ++a) {
+    l.stride[a] = std::max(1, static_cast<int>(step_mm / field.spacing_mm()[a] + 1e-3f));
+    l.lo[a] = std::clamp(static_cast<int>(std::floor(lo_u[a])) - 1, 0, last[a]);
+    hi[a] = std::clamp(static_cast<int>(std::ceil(hi_u[a])) + 1, l.lo[a], last[a]);
+    l.dims[a] = (hi[a] - l.lo[a]) / l.stride[a] + 1;
+  }
+  return l;
+}
+
+// Marks as outside (0) the inside cells (kFar) of the framed grid `d2` that are not 6-connected
+// to the inside cell at or next to `start`; none when there is no such cell (nothing is cut off).
+void keep_component(std::vector<float>& d2, const Vec3i& fd, const Vec3i& start) {
+  const std::size_t sy = fd.x(), sz = sy * fd.y();
+  auto at = [&](const Vec3i& c) { return c.z() * sz + c.y() * sy + c.x(); };
+  std::size_t first = d2.size();
+  for (int dz = -1; dz <= 1 && first == d2.size(); ++dz)
+    for (int dy = -1; dy <= 1 && first == d2.size(); ++dy)
+      for (int dx = -1; dx <= 1 && first == d2.size(); ++dx) {
+        const Vec3i c = (start + Vec3i(dx, dy, dz)).cwiseMax(1).cwiseMin(fd - Vec3i::Constant(2));
+        if (d2[at(c)] == kFar) first = at(c);
+      }
+  if (first == d2.size()) return;
+  std::vector<std::uint8_t> reached(d2.size(), 0);
+  std::vector<std::uint32_t> queue{static_cast<std::uint32_t>(first)};
+  reached[first] = 1;
+  // The frame is outside, so a neighbour index never leaves the grid.
+  const std::ptrdiff_t steps[6] = {1,
+                                   -1,
+                                   static_cast<std::ptrdiff_t>(sy),
+                                   -static_cast<std::ptrdiff_t>(sy),
+                                   static_cast<std::ptrdiff_t>(sz),
+                                   -static_cast<std::ptrdiff_t>(sz)};
+  for (std::size_t q = 0; q < queue.size(); ++q)
+    for (const std::ptrdiff_t step : steps) {
+      const std::size_t n = queue[q] + step;
+      if (d2[n] != kFar || reached[n]) continue;
+      reached[n] = 1;
+      queue.push_back(static_cast<std::uint32_t>(n));
+    }
+  for (std::size_t n = 0; n < d2.size(); ++n)
+    if (!reached[n]) d2[n] = 0.0f;
+}
+
 }  // namespace
 
 std::vector<float> squared_distance_transform_mm2(const std::vector<bool>& feature,
@@ -151,58 +193,51 @@ std::vector<float> squared_distance_transform_mm2(const std::vector<bool>& featu
   return grid;
 }
 
-bool deepest_interior_index(const Volume& labels, Vec3i& ijk, float& depth_mm) {
-  const Vec3i d = labels.dims();
-  const auto& data = label_data(labels);
-  // Crop to the labels' bounding box plus one voxel: the target is usually a small part of the
-  // volume, and the transform then costs a fraction of a full-volume pass. The box is found row
-  // by row, from each row's first and last inside voxel, eight voxels per step. (Voxel by voxel,
-  // this scan and the crop's std::vector<bool> below were three quarters of the function's
-  // instructions on the calling thread, 128³ sphere: 46 of 62 M.)
-  Vec3i lo = d, hi = Vec3i::Constant(-1);
-  for (int k = 0; k < d.z(); ++k)
-    for (int j = 0; j < d.y(); ++j) {
-      const std::uint8_t* row = data.data() + labels.linear_index(0, j, k);
-      const int first = first_nonzero(row, d.x());
-      if (first == d.x()) continue;
-      int last = d.x() - 1;
-      while (row[last] == 0) --last;
-      lo = lo.cwiseMin(Vec3i(first, j, k));
-      hi = hi.cwiseMax(Vec3i(last, j, k));
-    }
-  if ((hi.array() < 0).any()) return false;
-  lo = (lo - Vec3i::Ones()).cwiseMax(Vec3i::Zero());
-  hi = (hi + Vec3i::Ones()).cwiseMin(d - Vec3i::Ones());
-  const Vec3i cd = hi - lo + Vec3i::Ones();
-  // Feature = outside. The crop may end at the volume border with the label still on: voxels
-  // beyond the border count as outside, which a one-voxel frame of "outside" models. The grid is
-  // set up for the transform directly (0 outside, kFar inside), row by row, not through a
-  // std::vector<bool> of the feature. Every voxel has the frame within reach, so none stays at
-  // kFar.
-  const Vec3i fd = cd + Vec3i::Constant(2);
+std::optional<DeepestPoint> deepest_inside(const Volume& field, float iso, const Vec3f& lo_mm,
+                                           const Vec3f& hi_mm, const Vec3f& seed_mm,
+                                           float step_mm) {
+  if (field.type() != volume::VoxelType::Float32)
+    throw std::invalid_argument("deepest_inside: the field must be Float32");
+  if (field.empty()) return std::nullopt;
+  const Lattice l = lattice_of(field, lo_mm, hi_mm, step_mm);
+  // The lattice inside a one-cell frame of "outside": cells beyond the box count as outside, and
+  // every cell has the frame within reach, so none stays at kFar after the transform.
+  const Vec3i fd = l.dims + Vec3i::Constant(2);
   auto fidx = [&](int i, int j, int k) {
     return (static_cast<std::size_t>(k) * fd.y() + j) * fd.x() + i;
   };
-  std::vector<float> d2(static_cast<std::size_t>(fd.x()) * fd.y() * fd.z(), 0.0f);
-  for (int k = 0; k < cd.z(); ++k)
-    for (int j = 0; j < cd.y(); ++j) {
-      const std::uint8_t* row = data.data() + labels.linear_index(lo.x(), lo.y() + j, lo.z() + k);
+  std::vector<float> d2(static_cast<std::size_t>(fd.prod()), 0.0f);
+  const auto& values = field.f32();
+  bool any = false;
+  for (int k = 0; k < l.dims.z(); ++k)
+    for (int j = 0; j < l.dims.y(); ++j) {
+      const std::size_t row =
+          field.linear_index(l.lo.x(), l.lo.y() + j * l.stride.y(), l.lo.z() + k * l.stride.z());
       float* out = d2.data() + fidx(1, j + 1, k + 1);
-      for (int i = 0; i < cd.x(); ++i) out[i] = row[i] != 0 ? kFar : 0.0f;
-    }
-  for (int axis = 0; axis < 3; ++axis) transform_axis(d2, fd, axis, labels.spacing_mm()[axis]);
-  float best = -1.0f;
-  for (int k = 1; k <= cd.z(); ++k)
-    for (int j = 1; j <= cd.y(); ++j)
-      for (int i = 1; i <= cd.x(); ++i) {
-        const float value = d2[fidx(i, j, k)];
-        if (value > best) {
-          best = value;
-          ijk = lo + Vec3i(i - 1, j - 1, k - 1);
-        }
+      for (int i = 0; i < l.dims.x(); ++i) {
+        const bool inside = values[row + static_cast<std::size_t>(i) * l.stride.x()] > iso;
+        out[i] = inside ? kFar : 0.0f;
+        any = any || inside;
       }
-  depth_mm = std::sqrt(best);
-  return true;
+    }
+  if (!any) return std::nullopt;
+  const Vec3f seed_c =
+      (field.mm_to_index(seed_mm) - l.lo.cast<float>()).cwiseQuotient(l.stride.cast<float>());
+  keep_component(d2, fd, seed_c.array().round().cast<int>().matrix() + Vec3i::Ones());
+  const Vec3f cell_mm = field.spacing_mm().cwiseProduct(l.stride.cast<float>());
+  for (int axis = 0; axis < 3; ++axis) transform_axis(d2, fd, axis, cell_mm[axis]);
+  float best = 0.0f;
+  Vec3i best_c = Vec3i::Zero();
+  for (int k = 1; k <= l.dims.z(); ++k)
+    for (int j = 1; j <= l.dims.y(); ++j)
+      for (int i = 1; i <= l.dims.x(); ++i)
+        if (const float value = d2[fidx(i, j, k)]; value > best) {
+          best = value;
+          best_c = Vec3i(i - 1, j - 1, k - 1);
+        }
+  if (best <= 0.0f) return std::nullopt;
+  const Vec3i cell = l.lo + l.stride.cwiseProduct(best_c);
+  return DeepestPoint{field.index_to_mm(cell.cast<float>()), std::sqrt(best)};
 }
 
 double dice(const Volume& a, const Volume& b) {

@@ -1,8 +1,9 @@
 #pragma once
 /// @file
-/// @brief Label-volume measures shared by the pipeline (deepest interior point), the tests and the
-/// accuracy report: Euclidean distance transform, Dice, boundary distances.
+/// @brief Measures shared by the pipeline (deepest interior point), the tests and the accuracy
+/// report: Euclidean distance transform, Dice, boundary distances.
 
+#include <optional>
 #include <vector>
 
 #include "volume/volume.h"
@@ -16,10 +17,21 @@ std::vector<float> squared_distance_transform_mm2(const std::vector<bool>& featu
                                                   const volume::Vec3i& dims,
                                                   const volume::Vec3f& spacing_mm);
 
-/// Voxel centre deepest inside the UInt8 label volume (nonzero = inside): the maximum of the
-/// distance to the nearest outside voxel (voxels beyond the border count as outside). Returns false
-/// if the labels are empty.
-bool deepest_interior_index(const volume::Volume& labels, volume::Vec3i& ijk, float& depth_mm);
+/// Where seed tracking restarts: the point deepest inside the region `field > iso` of a Float32
+/// field (χ on the reconstruction grid), searched within the box [lo_mm, hi_mm] (the surface's
+/// bounds) on the field's cells subsampled to about `step_mm` (χ's cell may be finer than the
+/// input's voxel, which is resolution enough for a seed). Only the part of the region 6-connected
+/// to the cell at (or next to) `seed_mm` counts, when there is one: the surface around the seed,
+/// not another blob in its box. Depth is the distance to the nearest lattice point outside (points
+/// beyond the box count as outside). Nothing if the region is empty in the box.
+/// @throws std::invalid_argument if the field is not Float32.
+struct DeepestPoint {
+  volume::Vec3f position_mm = volume::Vec3f::Zero();
+  float depth_mm = 0.0f;
+};
+std::optional<DeepestPoint> deepest_inside(const volume::Volume& field, float iso,
+                                           const volume::Vec3f& lo_mm, const volume::Vec3f& hi_mm,
+                                           const volume::Vec3f& seed_mm, float step_mm);
 
 /// Label volumes here are UInt8; anything else throws std::invalid_argument.
 /// Dice coefficient 2|A∩B|/(|A|+|B|) of two UInt8 label volumes on the same grid (1 if both empty).

@@ -3,8 +3,9 @@
 #include <algorithm>
 #include <cmath>
 #include <opencv2/core.hpp>
-#include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
+
+#include "daemon/internal/png_writer.h"
 
 namespace sonomesh::daemon {
 
@@ -151,9 +152,7 @@ std::string SliceRenderer::encode(const Frame& frame, const Slice& slice, SliceA
       to_px({static_cast<float>(frame.seed_index[u]), static_cast<float>(frame.seed_index[v])});
   cv::drawMarker(bgr, cv::Point(seed.x >> kShift, seed.y >> kShift), kSeedBgr, cv::MARKER_CROSS, 14,
                  1, cv::LINE_AA);
-  std::vector<std::uint8_t> bytes;
-  if (!cv::imencode(".png", bgr, bytes)) return {};
-  return std::string(bytes.begin(), bytes.end());
+  return internal::encode_png_bgr(bgr.data, bgr.cols, bgr.rows, bgr.step);
 }
 
 std::optional<std::string> SliceRenderer::png(SliceAxis axis) {

@@ -5,7 +5,7 @@
 ///
 /// The worker hands over the volume, the mesh and the seed (all in the grid frame: origin +
 /// spacing ⊙ ijk) once per result; only the three planes and the contour segments are kept, and
-/// PNGs (OpenCV imgcodecs) are encoded when asked for, once per result.
+/// PNGs (libpng, png_writer.h) are encoded when asked for, once per result.
 
 #include <array>
 #include <cstdint>

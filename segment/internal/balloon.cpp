@@ -91,10 +91,10 @@ struct Prelude {
   WallSnap snap;
   std::string error;
 
-  Prelude(const volume::Volume& smoothed_in, const volume::Gradient& gradient, const Vec3f& seed_mm,
-          const BalloonOptions& options, BalloonStats& stats)
-      : smoothed(checked(smoothed_in, gradient, seed_mm, options, converted)),
-        sampler(smoothed, gradient),
+  Prelude(const volume::Volume& smoothed_in, const Vec3f& seed_mm, const BalloonOptions& options,
+          BalloonStats& stats)
+      : smoothed(checked(smoothed_in, seed_mm, options, converted)),
+        sampler(smoothed),
         vox_mm(smoothed.spacing_mm().minCoeff()) {
     seed = seed_region(sampler, smoothed, seed_mm, options, vox_mm, scale);
     stats.seed_level = seed.level;
@@ -110,11 +110,9 @@ struct Prelude {
     snap = wall_snap(options, vox_mm, seed.tissue_level, box.box_lo, box.box_hi);
   }
 
-  static const volume::Volume& checked(const volume::Volume& smoothed_in,
-                                       const volume::Gradient& gradient, const Vec3f& seed_mm,
+  static const volume::Volume& checked(const volume::Volume& smoothed_in, const Vec3f& seed_mm,
                                        const BalloonOptions& options, volume::Volume& storage) {
     if (smoothed_in.empty()) throw std::invalid_argument("inflate_balloon: empty volume");
-    check_gradient(smoothed_in, gradient, "inflate_balloon");
     check_seed_inside(smoothed_in, seed_mm);
     check_options(options);
     return as_float32(smoothed_in, storage);
@@ -143,12 +141,11 @@ BalloonResult evolve(const Prelude& pre, BalloonEvolution& evolution, BalloonRes
 
 }  // namespace
 
-BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::Gradient& gradient,
-                              const Vec3f& seed_mm, const BalloonOptions& options,
-                              std::stop_token stop) {
+BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const Vec3f& seed_mm,
+                              const BalloonOptions& options, std::stop_token stop) {
   BalloonResult result;
   BalloonStats& stats = result.stats;
-  const Prelude pre(smoothed_in, gradient, seed_mm, options, stats);
+  const Prelude pre(smoothed_in, seed_mm, options, stats);
   if (!pre.error.empty()) return pre.finish(result, pre.error);
   // S^0: initial_radius_vox, inside the rays' safe reach (it must start inside the object) and
   // not below one voxel.
@@ -161,14 +158,13 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const volume::G
   return evolve(pre, evolution, result, std::move(stop));
 }
 
-BalloonResult inflate_balloon_from(const volume::Volume& smoothed_in,
-                                   const volume::Gradient& gradient, const Mesh& start_mesh,
+BalloonResult inflate_balloon_from(const volume::Volume& smoothed_in, const Mesh& start_mesh,
                                    const Vec3f& seed_mm, const BalloonOptions& options,
                                    const WarmStartOptions& warm, std::stop_token stop) {
   BalloonResult result;
   BalloonStats& stats = result.stats;
   stats.warm_start = true;
-  const Prelude pre(smoothed_in, gradient, seed_mm, options, stats);
+  const Prelude pre(smoothed_in, seed_mm, options, stats);
   if (!pre.error.empty()) return pre.finish(result, pre.error);
   auto unsafe = [&](const std::string& why) {
     result.start_unsafe = true;
@@ -203,8 +199,7 @@ BalloonResult inflate_balloon(const volume::Volume& image, float sigma_mm, const
   if (!image.contains_mm(seed_mm))
     throw std::invalid_argument("inflate_balloon: seed lies outside the volume");
   const volume::Volume smoothed = volume::smooth_gaussian(image, sigma_mm);
-  const volume::Gradient gradient = volume::central_gradient(smoothed);
-  return inflate_balloon(smoothed, gradient, seed_mm, options, std::move(stop));
+  return inflate_balloon(smoothed, seed_mm, options, std::move(stop));
 }
 
 }  // namespace sonomesh::segment

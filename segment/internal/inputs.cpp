@@ -6,15 +6,6 @@
 
 namespace sonomesh::segment::internal {
 
-void check_gradient(const volume::Volume& smoothed, const volume::Gradient& gradient,
-                    const char* who) {
-  for (const volume::Volume* g : {&gradient.gx, &gradient.gy, &gradient.gz})
-    if (g->dims() != smoothed.dims() || g->type() != volume::VoxelType::Float32)
-      throw std::invalid_argument(
-          std::string(who) +
-          ": gradient must be Float32 on the volume's grid (volume::central_gradient)");
-}
-
 const volume::Volume& as_float32(const volume::Volume& v, volume::Volume& storage) {
   if (v.type() == volume::VoxelType::Float32) return v;
   storage = volume::Volume(v.dims(), v.spacing_mm(), v.origin_mm(), volume::VoxelType::Float32);

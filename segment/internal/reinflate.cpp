@@ -48,9 +48,8 @@ void check_closed(const Mesh& surface, const VertexFaces& vf) {
 
 class Reinflation {
  public:
-  Reinflation(const volume::Volume& smoothed, const volume::Gradient& gradient, const Mesh& surface,
-              const BalloonStats& first_pass, const BalloonOptions& options,
-              const ReinflateOptions& pass, BalloonStats& stats);
+  Reinflation(const volume::Volume& smoothed, const Mesh& surface, const BalloonStats& first_pass,
+              const BalloonOptions& options, const ReinflateOptions& pass, BalloonStats& stats);
   void run(std::stop_token stop);
   void take_result(BalloonResult& result);
 
@@ -76,11 +75,10 @@ class Reinflation {
   std::vector<std::uint32_t> active_;  // the vertices still moving
 };
 
-Reinflation::Reinflation(const volume::Volume& smoothed, const volume::Gradient& gradient,
-                         const Mesh& surface, const BalloonStats& first_pass,
-                         const BalloonOptions& options, const ReinflateOptions& pass,
-                         BalloonStats& stats)
-    : sampler_(smoothed, gradient),
+Reinflation::Reinflation(const volume::Volume& smoothed, const Mesh& surface,
+                         const BalloonStats& first_pass, const BalloonOptions& options,
+                         const ReinflateOptions& pass, BalloonStats& stats)
+    : sampler_(smoothed),
       surface_(surface),
       options_(options),
       pass_(pass),
@@ -199,13 +197,11 @@ void Reinflation::take_result(BalloonResult& result) {
 
 }  // namespace
 
-BalloonResult reinflate(const volume::Volume& smoothed_in, const volume::Gradient& gradient,
-                        const Mesh& surface, const BalloonStats& first_pass,
-                        const BalloonOptions& options, const ReinflateOptions& pass,
-                        std::stop_token stop) {
+BalloonResult reinflate(const volume::Volume& smoothed_in, const Mesh& surface,
+                        const BalloonStats& first_pass, const BalloonOptions& options,
+                        const ReinflateOptions& pass, std::stop_token stop) {
   const auto t0 = Clock::now();
   if (smoothed_in.empty()) throw std::invalid_argument("reinflate: empty volume");
-  check_gradient(smoothed_in, gradient, "reinflate");
   if (!(first_pass.tissue_level > first_pass.seed_level))
     throw std::invalid_argument(
         "reinflate: first_pass holds no seed statistics (a balloon that ran)");
@@ -215,7 +211,7 @@ BalloonResult reinflate(const volume::Volume& smoothed_in, const volume::Gradien
   volume::Volume converted;
   const volume::Volume& smoothed = as_float32(smoothed_in, converted);
   BalloonResult result;
-  Reinflation pass2(smoothed, gradient, surface, first_pass, options, pass, result.stats);
+  Reinflation pass2(smoothed, surface, first_pass, options, pass, result.stats);
   pass2.run(std::move(stop));
   pass2.take_result(result);
   result.stats.elapsed_ms = ms_since(t0);

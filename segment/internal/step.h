@@ -55,9 +55,6 @@ inline Vec3f unit_face_normal(const std::vector<Vec3f>& pos,
   return len > 0.0f ? Vec3f(n / len) : Vec3f::Zero();
 }
 
-/// @throws std::invalid_argument unless the gradient is Float32 on the volume's grid.
-void check_gradient(const volume::Volume& smoothed, const volume::Gradient& gradient,
-                    const char* who);
 /// @throws std::invalid_argument for options out of range (segment.h).
 void check_options(const BalloonOptions& o);
 /// The sampler reads Float32: other types are converted once into `storage`.

@@ -2,9 +2,12 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <limits>
 #include <random>
+#include <utility>
+#include <vector>
 
 namespace sonomesh::daemon::internal {
 namespace {
@@ -52,20 +55,52 @@ TEST(DistanceTransform, NoFeatureIsInfinitelyFar) {
   for (float value : d2) EXPECT_TRUE(std::isinf(value));
 }
 
-TEST(DeepestInterior, IsTheCentreOfABall) {
-  const Volume labels = ball(Vec3i(32, 30, 28), Vec3f(13, 15, 12), 8.0f);
-  Vec3i ijk;
-  float depth_mm = 0;
-  ASSERT_TRUE(deepest_interior_index(labels, ijk, depth_mm));
-  EXPECT_LE((ijk - Vec3i(13, 15, 12)).cast<float>().norm(), 1.0f);
-  EXPECT_NEAR(depth_mm, 9.0f, 1.0f);  // radius 8 plus the half voxel to the first outside centre
+// A Float32 field positive inside balls (radius minus the distance to the nearest centre).
+Volume balls(const Vec3i& dims, float cell_mm, const std::vector<std::pair<Vec3f, float>>& b) {
+  Volume field(dims, Vec3f::Constant(cell_mm), Vec3f::Zero(), volume::VoxelType::Float32);
+  for (int k = 0; k < dims.z(); ++k)
+    for (int j = 0; j < dims.y(); ++j)
+      for (int i = 0; i < dims.x(); ++i) {
+        float value = -1e9f;
+        for (const auto& [centre_mm, radius_mm] : b)
+          value = std::max(value, radius_mm - (Vec3f(i, j, k) * cell_mm - centre_mm).norm());
+        field.f32()[field.linear_index(i, j, k)] = value;
+      }
+  return field;
 }
 
-TEST(DeepestInterior, EmptyLabelsHaveNone) {
-  const Volume labels(Vec3i(8, 8, 8), Vec3f::Ones(), Vec3f::Zero(), volume::VoxelType::UInt8);
-  Vec3i ijk;
-  float depth_mm = 0;
-  EXPECT_FALSE(deepest_interior_index(labels, ijk, depth_mm));
+TEST(DeepestInside, IsTheCentreOfABall) {
+  const Volume field = balls(Vec3i(32, 30, 28), 1.0f, {{Vec3f(13, 15, 12), 8.0f}});
+  const auto deepest =
+      deepest_inside(field, 0.0f, Vec3f(5, 7, 4), Vec3f(21, 23, 20), Vec3f(10, 15, 12), 1.0f);
+  ASSERT_TRUE(deepest.has_value());
+  EXPECT_LE((deepest->position_mm - Vec3f(13, 15, 12)).norm(), 1.0f);
+  EXPECT_NEAR(deepest->depth_mm, 9.0f, 1.0f);  // radius 8 plus the half cell to the first outside
+}
+
+TEST(DeepestInside, KeepsToThePartAroundTheSeed) {
+  // A large ball and a small one in the same box; the seed is in the small one.
+  const Volume field =
+      balls(Vec3i(48, 32, 32), 1.0f, {{Vec3f(14, 16, 16), 10.0f}, {Vec3f(36, 16, 16), 5.0f}});
+  const auto deepest =
+      deepest_inside(field, 0.0f, Vec3f(4, 6, 6), Vec3f(41, 26, 26), Vec3f(35, 17, 16), 1.0f);
+  ASSERT_TRUE(deepest.has_value());
+  EXPECT_LE((deepest->position_mm - Vec3f(36, 16, 16)).norm(), 1.0f);
+}
+
+TEST(DeepestInside, SubsamplesAFineFieldToTheStep) {
+  // Cells of 0.25 mm searched at 1 mm: four cells per lattice step, the centre within a step.
+  const Volume field = balls(Vec3i(64, 64, 64), 0.25f, {{Vec3f(8, 8.3f, 7.6f), 5.0f}});
+  const auto deepest =
+      deepest_inside(field, 0.0f, Vec3f(3, 3, 2.5f), Vec3f(13, 13, 12.5f), Vec3f(8, 8, 8), 1.0f);
+  ASSERT_TRUE(deepest.has_value());
+  EXPECT_LE((deepest->position_mm - Vec3f(8, 8.3f, 7.6f)).norm(), 1.0f);
+  EXPECT_NEAR(deepest->depth_mm, 5.0f, 1.0f);
+}
+
+TEST(DeepestInside, NothingInsideHasNone) {
+  const Volume field = balls(Vec3i(8, 8, 8), 1.0f, {{Vec3f(40, 40, 40), 2.0f}});
+  EXPECT_FALSE(deepest_inside(field, 0.0f, Vec3f(0, 0, 0), Vec3f(7, 7, 7), Vec3f(4, 4, 4), 1.0f));
 }
 
 TEST(Dice, IdenticalIsOneDisjointIsZero) {

@@ -51,6 +51,19 @@ TEST_P(PipelineOnPhantom, RecoversTopologyAndShape) {
   EXPECT_GT(t.reinflate_ms, 0.0) << "the second balloon pass ran";
 }
 
+// Seed tracking does not need the labels: the deepest point comes from χ either way.
+TEST(Pipeline, DeepestPointWithoutLabels) {
+  const sim::Phantom phantom = sim::make_phantom({.phantom = "cyst-needle", .size_vox = 64});
+  PipelineConfig config;
+  config.want_labels = false;
+  const PipelineResult result = run_pipeline(phantom.image, phantom.seed_mm, config);
+  ASSERT_TRUE(result.ok) << result.error;
+  EXPECT_FALSE(result.labels.has_value());
+  ASSERT_TRUE(result.deepest_interior_mm.has_value());
+  const Vec3i deepest = seed_index_of(phantom.image, *result.deepest_interior_mm);
+  EXPECT_EQ(phantom.truth.value(deepest.x(), deepest.y(), deepest.z()), 1.0f);
+}
+
 INSTANTIATE_TEST_SUITE_P(Phantoms, PipelineOnPhantom,
                          ::testing::Values(Case{"sphere", 0}, Case{"torus", 1},
                                            Case{"cyst-needle", 1}, Case{"double-torus", 2}),

@@ -22,7 +22,6 @@ namespace {
 struct Prepared {
   sim::Phantom phantom;
   volume::Volume smoothed;
-  volume::Gradient gradient;
   float vox_mm = 0.0f;
 };
 
@@ -32,7 +31,6 @@ Prepared prepare(const std::string& name, int size, std::uint32_t seed = 3) {
   p.vox_mm = p.phantom.image.spacing_mm().minCoeff();
   // About one voxel of smoothing, as the pipeline does (method.md §0).
   p.smoothed = volume::smooth_gaussian(p.phantom.image, p.vox_mm);
-  p.gradient = volume::central_gradient(p.smoothed);
   return p;
 }
 
@@ -108,7 +106,7 @@ int count(const segment::BalloonResult& r, StopReason reason) {
 
 TEST(Balloon, SettlesOnTheSphereWallWithinOneVoxel) {
   const Prepared p = prepare("sphere", 64);
-  const auto r = segment::inflate_balloon(p.smoothed, p.gradient, p.phantom.seed_mm);
+  const auto r = segment::inflate_balloon(p.smoothed, p.phantom.seed_mm);
   ASSERT_EQ(r.error, "");
   EXPECT_TRUE(r.converged);
   ASSERT_EQ(r.stop.size(), r.mesh.vertices.size());
@@ -155,7 +153,7 @@ TEST(Balloon, SettlesOnTheSphereWallWithinOneVoxel) {
 
 TEST(Balloon, TorusStaysGenusZeroAndStopsWhereTheFrontsMeet) {
   const Prepared p = prepare("torus", 72);
-  const auto r = segment::inflate_balloon(p.smoothed, p.gradient, p.phantom.seed_mm);
+  const auto r = segment::inflate_balloon(p.smoothed, p.phantom.seed_mm);
   ASSERT_EQ(r.error, "");
   EXPECT_TRUE(r.converged);
   EXPECT_TRUE(closed_and_consistently_oriented(r.mesh));
@@ -213,7 +211,7 @@ TEST(Balloon, TorusStaysGenusZeroAndStopsWhereTheFrontsMeet) {
 
 TEST(Balloon, CystNeedleWrapsAroundTheNeedleWithoutLeaking) {
   const Prepared p = prepare("cyst-needle", 80);
-  const auto r = segment::inflate_balloon(p.smoothed, p.gradient, p.phantom.seed_mm);
+  const auto r = segment::inflate_balloon(p.smoothed, p.phantom.seed_mm);
   ASSERT_EQ(r.error, "");
   EXPECT_TRUE(closed_and_consistently_oriented(r.mesh));
   EXPECT_EQ(segment::euler_characteristic(r.mesh), 2);
@@ -252,7 +250,7 @@ TEST(Balloon, RefusesASeedOnABrightStructureQuickly) {
   // A seed in the tissue corner, well away from the cyst.
   const Vec3f tissue = p.phantom.image.index_to_mm(Vec3f(6, 6, 6));
   const auto t0 = std::chrono::steady_clock::now();
-  const auto r = segment::inflate_balloon(p.smoothed, p.gradient, tissue);
+  const auto r = segment::inflate_balloon(p.smoothed, tissue);
   const double ms =
       std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
   EXPECT_NE(r.error, "");
@@ -271,24 +269,22 @@ TEST(Balloon, RefusesASeedOnTheNeedle) {
   const Vec3f needle = p.smoothed.index_to_mm(
       Vec3f(static_cast<float>(best % d.x()), static_cast<float>((best / d.x()) % d.y()),
             static_cast<float>(best / (static_cast<std::size_t>(d.x()) * d.y()))));
-  const auto r = segment::inflate_balloon(p.smoothed, p.gradient, needle);
+  const auto r = segment::inflate_balloon(p.smoothed, needle);
   EXPECT_NE(r.error, "");
   EXPECT_NE(r.error.find("hypoechoic"), std::string::npos);
 }
 
 TEST(Balloon, ThrowsForASeedOutsideTheVolume) {
   const Prepared p = prepare("sphere", 48);
-  EXPECT_THROW(
-      segment::inflate_balloon(p.smoothed, p.gradient, p.phantom.image.max_mm() + Vec3f(5, 0, 0)),
-      std::invalid_argument);
+  EXPECT_THROW(segment::inflate_balloon(p.smoothed, p.phantom.image.max_mm() + Vec3f(5, 0, 0)),
+               std::invalid_argument);
 }
 
 TEST(Balloon, HonoursTheStopToken) {
   const Prepared p = prepare("sphere", 48);
   std::stop_source source;
   source.request_stop();
-  const auto r =
-      segment::inflate_balloon(p.smoothed, p.gradient, p.phantom.seed_mm, {}, source.get_token());
+  const auto r = segment::inflate_balloon(p.smoothed, p.phantom.seed_mm, {}, source.get_token());
   EXPECT_TRUE(r.stats.cancelled);
   EXPECT_FALSE(r.converged);
   EXPECT_EQ(segment::euler_characteristic(r.mesh), 2);  // still a valid (small) balloon
@@ -296,14 +292,13 @@ TEST(Balloon, HonoursTheStopToken) {
 
 TEST(Balloon, RejectsAnInflationStepThatCouldJumpAWall) {
   const Prepared p = prepare("sphere", 48);
-  EXPECT_THROW(
-      segment::inflate_balloon(p.smoothed, p.gradient, p.phantom.seed_mm, {.inflation_vox = 0.9f}),
-      std::invalid_argument);
+  EXPECT_THROW(segment::inflate_balloon(p.smoothed, p.phantom.seed_mm, {.inflation_vox = 0.9f}),
+               std::invalid_argument);
 }
 
 TEST(Balloon, RejectsASnapWindowBeyondEightVoxels) {
   const Prepared p = prepare("sphere", 48);
-  EXPECT_THROW(segment::inflate_balloon(p.smoothed, p.gradient, p.phantom.seed_mm,
+  EXPECT_THROW(segment::inflate_balloon(p.smoothed, p.phantom.seed_mm,
                                         {.snap_back_vox = 4.0f, .snap_ahead_vox = 4.5f}),
                std::invalid_argument);
 }
@@ -319,9 +314,9 @@ TEST(Balloon, SnapsStoppedVerticesOntoTheWallInsteadOfShortOfIt) {
     for (const auto& v : r.mesh.vertices) sum += (v - centre).norm();
     return static_cast<float>(sum / static_cast<double>(r.mesh.vertices.size()));
   };
-  const auto snapped = segment::inflate_balloon(p.smoothed, p.gradient, p.phantom.seed_mm);
+  const auto snapped = segment::inflate_balloon(p.smoothed, p.phantom.seed_mm);
   const auto unsnapped =
-      segment::inflate_balloon(p.smoothed, p.gradient, p.phantom.seed_mm, {.snap_to_wall = false});
+      segment::inflate_balloon(p.smoothed, p.phantom.seed_mm, {.snap_to_wall = false});
   ASSERT_EQ(snapped.error, "");
   ASSERT_EQ(unsnapped.error, "");
   EXPECT_EQ(segment::euler_characteristic(snapped.mesh), 2);
@@ -334,10 +329,8 @@ TEST(Balloon, SerialAndParallelRunsAreIdentical) {
   // depend on which front marked A_t first. Marks are applied in vertex order after each
   // parallel step, so the thread count must not change a single vertex.
   const Prepared p = prepare("cyst-needle", 56);
-  const auto serial =
-      segment::inflate_balloon(p.smoothed, p.gradient, p.phantom.seed_mm, {.threads = 1});
-  const auto parallel =
-      segment::inflate_balloon(p.smoothed, p.gradient, p.phantom.seed_mm, {.threads = 2});
+  const auto serial = segment::inflate_balloon(p.smoothed, p.phantom.seed_mm, {.threads = 1});
+  const auto parallel = segment::inflate_balloon(p.smoothed, p.phantom.seed_mm, {.threads = 2});
   ASSERT_EQ(serial.error, "");
   EXPECT_GT(count(serial, StopReason::SelfIntersection), 0);
   EXPECT_EQ(serial.stats.iterations, parallel.stats.iterations);
@@ -364,12 +357,11 @@ TEST(Balloon, ALeakThroughAGapEndsWithAnErrorNotAHang) {
         image.f32()[image.linear_index(i, j, k)] = shell && !hole ? 120.0f : 30.0f;
       }
   const auto smoothed = volume::smooth_gaussian(image, 1.0f);
-  const auto gradient = volume::central_gradient(smoothed);
   // The default bound (the bounding box's whole area) would let it first spread over the volume
   // walls; a quarter of it is still four times this shell's area.
   const auto t0 = std::chrono::steady_clock::now();
   const auto r =
-      segment::inflate_balloon(smoothed, gradient, Vec3f(24, 24, 24), {.max_area_fraction = 0.25f});
+      segment::inflate_balloon(smoothed, Vec3f(24, 24, 24), {.max_area_fraction = 0.25f});
   const double ms =
       std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
   EXPECT_TRUE(r.stats.leaked);
@@ -382,8 +374,7 @@ TEST(Balloon, WorksOnAnisotropicSpacing) {
   auto ph = sim::make_phantom(
       {.phantom = "sphere", .size_vox = 56, .spacing_mm = {0.5f, 0.5f, 0.8f}, .seed = 5});
   const auto sm = volume::smooth_gaussian(ph.image, 0.6f);
-  const auto g = volume::central_gradient(sm);
-  const auto r = segment::inflate_balloon(sm, g, ph.seed_mm);
+  const auto r = segment::inflate_balloon(sm, ph.seed_mm);
   ASSERT_EQ(r.error, "");
   const auto wall = truth_wall_mm(ph.truth);
   int far = 0;
@@ -448,13 +439,13 @@ TEST(Reinflate, GivesAThinnedTorusBackItsWallAndKeepsItsGenus) {
   // What the reconstruction's smoothing does to a thin tube: the surface sits inside the wall.
   // The second pass must bring it back to the wall without changing the topology.
   const Prepared p = prepare("torus", 64);
-  const auto first = segment::inflate_balloon(p.smoothed, p.gradient, p.phantom.seed_mm);
+  const auto first = segment::inflate_balloon(p.smoothed, p.phantom.seed_mm);
   ASSERT_EQ(first.error, "");
   const SimTorus t(p.phantom.image);
   const segment::Mesh thinned = torus_mesh(t.centre, t.major_mm, t.tube_mm - 1.0f * p.vox_mm);
   const auto before = tube_wall_error_vox(thinned, t.centre, t.major_mm, t.tube_mm, p.vox_mm);
 
-  const auto second = segment::reinflate(p.smoothed, p.gradient, thinned, first.stats);
+  const auto second = segment::reinflate(p.smoothed, thinned, first.stats);
   ASSERT_EQ(second.mesh.vertices.size(), thinned.vertices.size());
   EXPECT_EQ(second.mesh.triangles, thinned.triangles)
       << "connectivity, and with it the genus, stays";
@@ -475,12 +466,12 @@ TEST(Reinflate, GivesAThinnedTorusBackItsWallAndKeepsItsGenus) {
 
 TEST(Reinflate, LeavesASurfaceOnTheWallWhereItIs) {
   const Prepared p = prepare("torus", 64);
-  const auto first = segment::inflate_balloon(p.smoothed, p.gradient, p.phantom.seed_mm);
+  const auto first = segment::inflate_balloon(p.smoothed, p.phantom.seed_mm);
   ASSERT_EQ(first.error, "");
   const SimTorus t(p.phantom.image);
   // Half a voxel outside the wall: already past the mid level, so nothing may move outwards.
   const segment::Mesh outside = torus_mesh(t.centre, t.major_mm, t.tube_mm + 0.5f * p.vox_mm);
-  const auto second = segment::reinflate(p.smoothed, p.gradient, outside, first.stats);
+  const auto second = segment::reinflate(p.smoothed, outside, first.stats);
   const auto before = tube_wall_error_vox(outside, t.centre, t.major_mm, t.tube_mm, p.vox_mm);
   const auto after = tube_wall_error_vox(second.mesh, t.centre, t.major_mm, t.tube_mm, p.vox_mm);
   EXPECT_LE(after.first, before.first + 0.1f);
@@ -488,12 +479,11 @@ TEST(Reinflate, LeavesASurfaceOnTheWallWhereItIs) {
 
 TEST(Reinflate, RefusesAnOpenSurface) {
   const Prepared p = prepare("sphere", 48);
-  const auto first = segment::inflate_balloon(p.smoothed, p.gradient, p.phantom.seed_mm);
+  const auto first = segment::inflate_balloon(p.smoothed, p.phantom.seed_mm);
   ASSERT_EQ(first.error, "");
   segment::Mesh open = first.mesh;
   open.triangles.pop_back();
-  EXPECT_THROW(segment::reinflate(p.smoothed, p.gradient, open, first.stats),
-               std::invalid_argument);
-  EXPECT_THROW(segment::reinflate(p.smoothed, p.gradient, first.mesh, segment::BalloonStats{}),
+  EXPECT_THROW(segment::reinflate(p.smoothed, open, first.stats), std::invalid_argument);
+  EXPECT_THROW(segment::reinflate(p.smoothed, first.mesh, segment::BalloonStats{}),
                std::invalid_argument);
 }

@@ -43,11 +43,10 @@ TEST(BalloonOptions, ValidateNamesTheFirstProblem) {
 TEST(BalloonOptions, InflateRefusesWhatValidateRefuses) {
   volume::Volume image(volume::Vec3i(16, 16, 16), volume::Vec3f::Ones(), volume::Vec3f::Zero(),
                        volume::VoxelType::Float32);
-  const volume::Gradient gradient = volume::central_gradient(image);
   segment::BalloonOptions o;
   o.tau_curv = 0;
   try {
-    segment::inflate_balloon(image, gradient, volume::Vec3f(8, 8, 8), o);
+    segment::inflate_balloon(image, volume::Vec3f(8, 8, 8), o);
     FAIL() << "options refused by validate were accepted";
   } catch (const std::invalid_argument& e) {
     EXPECT_EQ(std::string(e.what()), "BalloonOptions: " + segment::validate(o));
