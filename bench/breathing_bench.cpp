@@ -3,7 +3,7 @@
 // plans made for it, the reconstruct stage's time, genus and Dice against the truth.
 //   breathing_bench [--phantom cyst-needle] [--size 128] [--spacing 0.4] [--volumes 40]
 //                   [--rate 10] [--warm] [--quiet]
-// --warm: each volume's balloon starts from the previous one's (daemon::WarmStart, 2 voxels in)
+// --warm: each volume's balloon starts inside the previous one's (daemon::WarmStart, 2 voxels in)
 // and the seed is the previous deepest point, as the daemon's worker runs it (issue 17).
 // A breathing target should land on a handful of grid sizes, so plans stop being made after the
 // first few volumes (issue 17).

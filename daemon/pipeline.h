@@ -138,7 +138,8 @@ PipelineResult run_pipeline(const volume::Volume& input, const Vec3f& seed_mm,
                             std::stop_token stop = {});
 
 /// A warm start (issue 17): the previous volume's balloon (grid frame mm, closed, genus 0; not
-/// the reconstructed surface, which may have a tunnel) and how far to move it inward first.
+/// the reconstructed surface, which may have a tunnel) and how far inside it the new balloon
+/// starts (its interior is eroded by that much).
 struct WarmStart {
   segment::Mesh balloon;
   std::vector<segment::StopReason> balloon_stop;  // per vertex: its walls must still be there
