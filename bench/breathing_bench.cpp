@@ -3,7 +3,8 @@
 // plans made for it, the reconstruct stage's time, genus and Dice against the truth.
 //   breathing_bench [--phantom cyst-needle] [--size 128] [--spacing 0.4] [--volumes 40]
 //                   [--rate 10] [--warm] [--quiet]
-// --warm: each volume's balloon starts inside the previous one's (daemon::WarmStart, 2 voxels in)
+// --warm: each volume's balloon starts inside the previous one's (daemon::WarmStart, 3 voxels in,
+// as the daemon's worker with a still target)
 // and the seed is the previous deepest point, as the daemon's worker runs it (issue 17).
 // A breathing target should land on a handful of grid sizes, so plans stop being made after the
 // first few volumes (issue 17).
@@ -59,7 +60,7 @@ int main(int argc, char** argv) {
                                                     buffers, warm ? &*warm : nullptr);
     warm.reset();
     if (warm_start && r.ok) {
-      warm = daemon::WarmStart{r.balloon, r.balloon_stop, 2.0f * spacing_mm};
+      warm = daemon::WarmStart{r.balloon, r.balloon_stop, 3.0f * spacing_mm};
       tracked_mm = r.deepest_interior_mm;
     }
     warm_count += r.warm_start;
