@@ -141,11 +141,16 @@ PipelineResult run_pipeline(const volume::Volume& input, const Vec3f& seed_mm,
                             std::stop_token stop = {});
 
 /// A warm start (issue 17): the previous volume's balloon (grid frame mm, closed, genus 0; not
-/// the reconstructed surface, which may have a tunnel) and how far to move it inward first.
+/// the reconstructed surface, which may have a tunnel) and how far inside it the new balloon
+/// starts (its interior is eroded by that much).
 struct WarmStart {
   segment::Mesh balloon;
   std::vector<segment::StopReason> balloon_stop;  // per vertex: its walls must still be there
   float inset_mm = 0.0f;  // raised to at least 2 voxels (segment::WarmStartOptions)
+  // The previous result's genus: a warm result of another genus is checked by a cold start
+  // (the start's checks refuse a needle inserted or withdrawn before, so a warm start that
+  // changes the genus is suspect). Unset: not checked.
+  std::optional<int> genus;
 };
 
 /// Same, the balloon starting from `warm` when it is given and safe on this volume

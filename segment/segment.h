@@ -112,6 +112,7 @@ struct BalloonStats {
   float noise_rise_per_mm = 0.0f;    // ρ, grey levels per mm
   float initial_radius_mm = 0.0f;    // the sphere's (0 for a warm start)
   bool warm_start = false;           // started from a given mesh (inflate_balloon_from)
+  double start_mesh_ms = 0.0;        // the warm start's walls check, start mesh and its check
   int remesh_passes = 0;
   int splits = 0;
   int collapses = 0;
@@ -149,28 +150,29 @@ struct BalloonResult {
 /// e.g. on the needle or in tissue), or a balloon that leaks out of its target (leak bound),
 /// gives a result with `error` set and an empty mesh.
 /// @throws std::invalid_argument if `seed_mm` lies outside the volume, or for options out of range
-/// (h·μ > 0.5 vox, h·λ ∉ [0, 1],
-///         non-positive edge length).
+///         (h·μ > 0.5 vox, h·λ ∉ [0, 1], non-positive edge length).
 BalloonResult inflate_balloon(const volume::Volume& smoothed, const Vec3f& seed_mm,
                               const BalloonOptions& options = {}, std::stop_token stop = {});
 
-/// How a warm start moves the previous balloon inward before starting from it.
+/// How far inside the previous balloon a warm start begins.
 struct WarmStartOptions {
-  float inset_mm = 0.0f;  // along the vertex normals; at least 2 voxels (raised to that)
+  float inset_mm = 0.0f;  // the erosion of its interior; at least 2 voxels (raised to that)
   // The start mesh's stop reasons (the previous balloon's): each wall it stopped at must still
   // be within inset_mm (more than 10 % gone: not safe). Empty: not checked.
   std::span<const StopReason> start_stop;
 };
 
-/// The warm start (issue 17): the balloon starts from `start_mesh` (the previous volume's
+/// The warm start (issue 17): the balloon starts inside `start_mesh` (the previous volume's
 /// balloon, closed and genus 0; not a reconstructed surface, which may have a tunnel) instead of
-/// the small sphere at the seed. The walls it stopped at must still be there (start_stop); the
-/// mesh is smoothed lightly, moved `inset_mm` inward along its
-/// vertex normals and remeshed to the target edge length; then every vertex and edge midpoint
-/// must lie inside the volume and below the cost rule's wall level (the seed region's, from
-/// `seed_mm`, as in a cold start). A start that fails is not used: the result has
-/// `start_unsafe` and `error` set and an empty mesh. A_t starts empty (a withdrawn needle's
-/// tunnel is not carried from the old volume). Otherwise as inflate_balloon, same throws.
+/// from the small sphere at the seed. The walls it stopped at must still be there (start_stop);
+/// its interior, rasterised on a voxel grid over its bounding box, without the cells its surface
+/// passes through (so sheets that met behind a needle stay apart), is eroded by `inset_mm`; the
+/// component at `seed_mm` must have a closed genus-0 surface, which is remeshed to the target
+/// edge length; then every vertex and edge midpoint must lie inside the volume and below the
+/// cost rule's wall level (the seed region's, from `seed_mm`, as in a cold start). A start that
+/// fails is not used: the result has `start_unsafe` and `error` set and an empty mesh. A_t
+/// starts empty (a withdrawn needle's tunnel is not carried from the old volume). Otherwise as
+/// inflate_balloon, same throws.
 BalloonResult inflate_balloon_from(const volume::Volume& smoothed, const Mesh& start_mesh,
                                    const Vec3f& seed_mm, const BalloonOptions& options = {},
                                    const WarmStartOptions& warm = {}, std::stop_token stop = {});

@@ -117,10 +117,13 @@ segment::BalloonResult balloon_stage(const PipelineBuffers& buffers, const Vec3f
     balloon = segment::inflate_balloon_from(
         buffers.smoothed, warm->balloon, seed_mm, config.balloon,
         {.inset_mm = warm->inset_mm, .start_stop = warm->balloon_stop}, stop);
-    result.warm_start = !balloon.start_unsafe;
+    result.warm_start = !balloon.start_unsafe && !balloon.stats.leaked;
     if (balloon.start_unsafe) result.start_reason = balloon.error;
+    // A warm balloon that leaked (seen once at 128³ cyst-needle, 20 volumes/s, 3 volumes after
+    // its start balloon) is not the target's: the cold start gets its chance.
+    if (balloon.stats.leaked) result.start_reason = "warm start leaked: " + balloon.error;
   }
-  if (!warm || balloon.start_unsafe)
+  if (!warm || !result.warm_start)
     balloon = segment::inflate_balloon(buffers.smoothed, seed_mm, config.balloon, stop);
   result.timings.balloon_ms = ms_since(t);
   result.balloon = std::move(balloon.mesh);
@@ -238,8 +241,25 @@ PipelineResult run_pipeline(const volume::Volume& input, const Vec3f& seed_mm,
       balloon_stage(buffers, seed_mm, config, warm, stop, result);
   if (stop.stop_requested()) return finish("stopped");
   if (!balloon.error.empty()) return finish("balloon: " + balloon.error);
-  if (std::string error = surface_stage(input, seed_mm, config, result); !error.empty())
-    return finish(std::move(error));
+  std::string error = surface_stage(input, seed_mm, config, result);
+  // A warm result without a surface, or of another genus than the last (seen once at 128³
+  // cyst-needle, 20 volumes/s: genus 0 where the target has 1), gets a cold start instead.
+  if (result.warm_start && warm->genus &&
+      (!error.empty() || result.topology.genus != *warm->genus)) {
+    result.warm_start = false;
+    result.start_reason =
+        error.empty() ? "warm start changed the genus to " + std::to_string(result.topology.genus)
+                      : "warm start: " + error;
+    result.stop_counts = {};
+    const double warm_ms = result.timings.balloon_ms;
+    const segment::BalloonResult cold =
+        balloon_stage(buffers, seed_mm, config, nullptr, stop, result);
+    result.timings.balloon_ms += warm_ms;
+    if (stop.stop_requested()) return finish("stopped");
+    if (!cold.error.empty()) return finish("balloon: " + cold.error);
+    error = surface_stage(input, seed_mm, config, result);
+  }
+  if (!error.empty()) return finish(std::move(error));
   reinflate_stage(buffers, config, stop, result);
   if (stop.stop_requested()) return finish("stopped");
   if (config.want_labels) labels_stage(input, result);

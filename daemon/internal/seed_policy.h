@@ -75,9 +75,10 @@ struct StartLimits {
   float max_motion_vox = 6.0f;      // a probe moved, not a breath (breathing: < 1 voxel a volume)
   float max_volume_change = 0.25f;  // the target changed shape, or the result did
   // After a refused warm start, this many volumes start cold without trying: a refused attempt
-  // costs its checks on top of the cold start, and a target the check refuses (the seam behind
-  // a needle) is refused again on the next volume.
-  int refused_backoff_volumes = 8;
+  // costs its checks and start mesh on top of the cold start. Since the start mesh comes from
+  // the eroded interior it costs a few ms at 128³, and the seam behind a needle is no longer
+  // refused, so one volume is enough (it was 8 when the normal-offset inset was refused there).
+  int refused_backoff_volumes = 1;
 };
 
 struct StartDecision {

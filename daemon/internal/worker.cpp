@@ -148,10 +148,12 @@ void Worker::process(QueuedVolume item) {
   if (seed_overridden_) last_centroid_mm_.reset();  // a new object: no motion to carry
   std::optional<WarmStart> warm;
   if (start.warm) {
-    // The inset: 2 voxels, plus how far the object moved last time (it may move as far again).
+    // The inset: 3 voxels, plus how far the object moved last time (it may move as far again).
+    // (128³ cyst-needle at 10 volumes/s: at 2 voxels 14 warm volumes in a row drifted to Dice
+    // 0.975-0.979 against the truth, cold 0.982-0.984; at 3 the stream's mean is 0.9843.)
     const float vox_mm = input.spacing_mm().minCoeff();
     warm = WarmStart{std::move(previous_->balloon), std::move(previous_->balloon_stop),
-                     (2.0f + previous_->motion_vox) * vox_mm};
+                     (3.0f + previous_->motion_vox) * vox_mm, previous_->genus};
   }
   previous_.reset();  // kept again below from this result, if it succeeds
   PipelineResult result;
@@ -236,6 +238,7 @@ void Worker::keep_for_warm_start(const volume::Volume& input, PipelineResult& re
   next.spacing_mm = input.spacing_mm();
   next.origin_mm = input.origin_mm();
   next.quality_ok = result.quality_ok;
+  next.genus = result.topology.genus;
   if (last_centroid_mm_) {
     next.motion_vox =
         (next.centroid_mm - *last_centroid_mm_).norm() / input.spacing_mm().minCoeff();

@@ -1,5 +1,6 @@
-// The warm start's start mesh (warm_start.h). A_t is not carried over from the previous volume
-// and the start mesh's interior is not marked in it either (balloon_evolution.h says why).
+// The warm start's checks (warm_start.h); the start mesh itself is warm_interior.h's. A_t is not
+// carried over from the previous volume and the start mesh's interior is not marked in it either
+// (balloon_evolution.h says why).
 #include "segment/internal/warm_start.h"
 
 #include <algorithm>
@@ -10,44 +11,6 @@
 
 namespace sonomesh::segment::internal {
 namespace {
-
-// Smoothing before the inset: two umbrella steps of this weight round the creases the balloon
-// left where it met itself, so the inset does not fold them. They move a crease by a fraction of
-// a voxel, well inside the inset's 2 voxels.
-constexpr int kSmoothingSteps = 2;
-constexpr float kSmoothingWeight = 0.3f;
-constexpr int kRemeshPasses = 3;
-
-constexpr int kUnfoldRounds = 4;
-
-// Unique neighbours of every vertex, from the triangles.
-std::vector<std::vector<std::uint32_t>> neighbours(const Mesh& m) {
-  std::vector<std::vector<std::uint32_t>> out(m.vertices.size());
-  for (const auto& t : m.triangles)
-    for (int k = 0; k < 3; ++k) {
-      out[t[k]].push_back(t[(k + 1) % 3]);
-      out[t[k]].push_back(t[(k + 2) % 3]);
-    }
-  for (auto& n : out) {
-    std::sort(n.begin(), n.end());
-    n.erase(std::unique(n.begin(), n.end()), n.end());
-  }
-  return out;
-}
-
-// Umbrella steps: each vertex moves kSmoothingWeight of the way to its neighbours' centroid.
-void smooth(Mesh& m, const std::vector<std::vector<std::uint32_t>>& ring, int steps) {
-  for (int step = 0; step < steps; ++step) {
-    std::vector<Vec3f> next = m.vertices;
-    for (std::size_t v = 0; v < m.vertices.size(); ++v) {
-      Vec3f centroid = Vec3f::Zero();
-      for (const std::uint32_t q : ring[v]) centroid += m.vertices[q];
-      centroid /= static_cast<float>(ring[v].size());
-      next[v] += kSmoothingWeight * (centroid - m.vertices[v]);
-    }
-    m.vertices = std::move(next);
-  }
-}
 
 // Area-weighted vertex normals (unit; zero where the faces cancel).
 std::vector<Vec3f> vertex_normals(const Mesh& m) {
@@ -64,64 +27,7 @@ std::vector<Vec3f> vertex_normals(const Mesh& m) {
   return n;
 }
 
-double signed_volume_mm3(const Mesh& m) {
-  double six_v = 0.0;
-  for (const auto& t : m.triangles)
-    six_v += m.vertices[t[0]].cast<double>().dot(
-        m.vertices[t[1]].cast<double>().cross(m.vertices[t[2]].cast<double>()));
-  return six_v / 6.0;
-}
-
-// Folded by the inset: a face whose normal turned against its old one.
-int folded_faces(const Mesh& before, const Mesh& after) {
-  int folded = 0;
-  for (const auto& t : before.triangles) {
-    auto normal = [&](const Mesh& m) {
-      return Vec3f(
-          (m.vertices[t[1]] - m.vertices[t[0]]).cross(m.vertices[t[2]] - m.vertices[t[0]]));
-    };
-    folded += normal(before).dot(normal(after)) <= 0.0f;
-  }
-  return folded;
-}
-
 }  // namespace
-
-std::string prepare_start_mesh(const Mesh& previous, float inset_mm, const RemeshLimits& limits,
-                               BalloonMesh& out) {
-  if (previous.vertices.size() < 4 || previous.triangles.size() < 4)
-    return "the previous balloon has no surface";
-  if (mesh::euler_characteristic(previous) != 2) return "the previous balloon is not genus 0";
-  Mesh m = previous;
-  const auto ring = neighbours(m);
-  for (const auto& r : ring)
-    if (r.empty()) return "the previous balloon has an isolated vertex";
-  smooth(m, ring, kSmoothingSteps);
-  const Mesh smoothed = m;
-  const std::vector<Vec3f> normal = vertex_normals(m);
-  for (std::size_t v = 0; v < m.vertices.size(); ++v) m.vertices[v] -= inset_mm * normal[v];
-  // The inset folds a crease tighter than itself (the groove around a needle): smoothing the
-  // moved mesh unfolds it, a few steps at a time.
-  int folded = folded_faces(smoothed, m);
-  for (int round = 0; round < kUnfoldRounds && folded > 0; ++round) {
-    smooth(m, ring, kSmoothingSteps);
-    folded = folded_faces(smoothed, m);
-  }
-  // Even a few folded faces are refused: left in (tried at 2 % of the faces, on the seam behind
-  // a needle where two sheets met) they turned the balloon through the needle and it leaked.
-  if (folded > 0)
-    return std::to_string(folded) + " faces folded when moved " + std::to_string(inset_mm) +
-           " mm inward (a part thinner than twice that)";
-  if (!(signed_volume_mm3(m) > 0.0)) return "the inset left no enclosed volume";
-  try {
-    from_plain_mesh(m, out);
-  } catch (const std::invalid_argument& e) {
-    return std::string("the previous balloon is not manifold: ") + e.what();
-  }
-  for (int pass = 0; pass < kRemeshPasses; ++pass) remesh(out, limits);
-  if (std::string why = validate(out); !why.empty()) return "the start mesh is invalid: " + why;
-  return {};
-}
 
 std::string check_start_safe(const BalloonMesh& start, const ImageSampler& sampler,
                              const CostScale& scale, float wall_level, const StepKernel& box) {

@@ -1,7 +1,7 @@
 #pragma once
 /// @file
-/// @brief The warm start's start mesh (segment.h, inflate_balloon_from): the previous volume's
-/// balloon moved inward, remeshed, and checked against the new volume before it is used.
+/// @brief The warm start's checks (segment.h, inflate_balloon_from): the previous balloon's walls
+/// still there, and the start mesh (warm_interior.h) inside the new volume's target.
 
 #include <span>
 #include <string>
@@ -11,12 +11,6 @@
 #include "segment/internal/step.h"
 
 namespace sonomesh::segment::internal {
-
-/// `previous` (closed, manifold, genus 0, outward) lightly smoothed, moved `inset_mm` inward
-/// along its vertex normals, then remeshed to `limits`, into `out`. Returns why it cannot start
-/// a balloon (not a closed genus-0 mesh, or folded by the inset), empty if it can.
-std::string prepare_start_mesh(const Mesh& previous, float inset_mm, const RemeshLimits& limits,
-                               BalloonMesh& out);
 
 /// The check on the new volume: every vertex and every edge midpoint of `start` lies in the
 /// step's box and below `wall_level` (the cost rule's "inside", in the cost's scale). Returns why

@@ -26,14 +26,14 @@ sim::Phantom frame(float time_s, bool needle = true) {
 }
 
 // A stream as the worker runs it: the seed is the last result's deepest point, the warm start
-// its balloon moved 2 voxels inward.
+// its balloon's interior eroded by 3 voxels.
 class Stream {
  public:
   PipelineResult next(const sim::Phantom& p) {
     const Vec3f seed = seed_.value_or(p.seed_mm);
     seed_used_ = seed;
     std::optional<WarmStart> warm;
-    if (previous_) warm = WarmStart{previous_->balloon, previous_->balloon_stop, 2.0f * kSpacingMm};
+    if (previous_) warm = WarmStart{previous_->balloon, previous_->balloon_stop, 3.0f * kSpacingMm};
     PipelineResult r =
         run_pipeline(p.image, seed, PipelineConfig{}, buffers_, warm ? &*warm : nullptr);
     previous_.reset();
@@ -55,8 +55,10 @@ class Stream {
 };
 
 // Every volume of a breathing stream, warm or (where the check refused the warm start) cold,
-// against a cold start from the same seed. Returns how many volumes started warm.
-int agree_with_cold_start(bool needle) {
+// against a cold start from the same seed: the truth's genus, Dice between the two at least
+// `min_dice`, and the warm result no further from the truth than the cold one (within 0.005).
+// Returns how many volumes started warm.
+int agree_with_cold_start(bool needle, double min_dice) {
   Stream stream;
   int warm_starts = 0;
   for (int i = 0; i < 6; ++i) {
@@ -65,33 +67,43 @@ int agree_with_cold_start(bool needle) {
     EXPECT_TRUE(warm.ok) << "volume " << i << ": " << warm.error;
     if (!warm.ok) return warm_starts;
     warm_starts += warm.warm_start;
-    std::printf("volume %d needle %d genus %d %s\n", i, int(needle), warm.topology.genus,
-                warm.warm_start ? "warm" : warm.start_reason.c_str());
     // (The same seed: the tracked one. The phantom's own seed gives a result 1.4 % apart.)
     const PipelineResult cold = run_pipeline(p.image, stream.seed_used(), PipelineConfig{});
     EXPECT_TRUE(cold.ok) << cold.error;
     if (!cold.ok) return warm_starts;
-    EXPECT_EQ(warm.topology.genus, cold.topology.genus) << "volume " << i;
-    // (With the needle, the cold start from the tracked seed of volume 1 gives genus 2 on main
-    // too: a seed-dependent fault of the pipeline, not of the start. Left to the truth tests.)
+    const double between = internal::dice(*warm.labels, *cold.labels);
+    const double warm_truth = internal::dice(*warm.labels, p.truth);
+    const double cold_truth = internal::dice(*cold.labels, p.truth);
+    std::printf(
+        "volume %d needle %d genus %d (cold %d) %s, Dice warm-cold %.4f, "
+        "to truth warm %.4f cold %.4f\n",
+        i, int(needle), warm.topology.genus, cold.topology.genus,
+        warm.warm_start ? "warm" : warm.start_reason.c_str(), between, warm_truth, cold_truth);
+    EXPECT_EQ(warm.topology.genus, p.genus) << "volume " << i;
+    // (With the needle the cold start's genus is not asserted: from the tracked seed it gives
+    // genus 2 or 3 on some volumes, on main too, a seed-dependent fault of the pipeline.)
     if (!needle) {
-      EXPECT_EQ(warm.topology.genus, p.genus) << "volume " << i;
+      EXPECT_EQ(cold.topology.genus, p.genus) << "volume " << i;
     }
-    EXPECT_GE(internal::dice(*warm.labels, *cold.labels), 0.99) << "volume " << i;
-    EXPECT_GE(internal::dice(*warm.labels, p.truth), 0.95) << "volume " << i;
+    EXPECT_GE(between, min_dice) << "volume " << i;
+    EXPECT_GE(warm_truth, cold_truth - 0.005) << "volume " << i;
+    EXPECT_GE(warm_truth, 0.95) << "volume " << i;
   }
   return warm_starts;
 }
 
 TEST(WarmStartPipeline, AgreesWithColdStartOnABreathingCyst) {
   // Without the needle every volume after the first starts warm.
-  EXPECT_EQ(agree_with_cold_start(false), 5);
+  EXPECT_EQ(agree_with_cold_start(false, 0.99), 5);
 }
 
 TEST(WarmStartPipeline, AgreesWithColdStartOnABreathingCystNeedle) {
-  // With it, the check refuses some warm starts (the seam behind the needle folds when moved
-  // inward); the results agree either way.
-  agree_with_cold_start(true);
+  // With it, the balloon met itself behind the needle; its eroded interior keeps the two sheets
+  // apart, so the warm starts are used there too (all 5 after the first when this was written).
+  // Warm and cold differ by Dice 0.986-0.988 (not the 0.99): the warm results lie closer
+  // to the truth (0.976-0.977 against the cold ones' 0.971-0.975), with the truth's genus on
+  // every volume.
+  EXPECT_GE(agree_with_cold_start(true, 0.975), 4);
 }
 
 // The needle switched at volume 3: the genus must be the truth's on every volume from it on.

@@ -291,7 +291,7 @@ TEST(SeedPolicy, DecideStartColdForEachFailedCondition) {
   EXPECT_EQ(cold_reason([](StartInputs& in) { in.same_grid = false; }), "grid changed");
   EXPECT_EQ(cold_reason([](StartInputs& in) { in.motion_vox = 7.0f; }).rfind("moved", 0), 0u);
   EXPECT_EQ(cold_reason([](StartInputs& in) { in.volume_change = 0.4f; }), "volume changed 40 %");
-  EXPECT_EQ(cold_reason([](StartInputs& in) { in.since_refused = 3; }),
+  EXPECT_EQ(cold_reason([](StartInputs& in) { in.since_refused = 0; }),
             "warm start refused recently");
   StartInputs after_backoff = warm_inputs();
   after_backoff.since_refused = StartLimits{}.refused_backoff_volumes;
