@@ -146,16 +146,7 @@ void Worker::process(QueuedVolume item) {
   const Vec3f seed_mm(seed->mm[0], seed->mm[1], seed->mm[2]);
   const StartDecision start = choose_start(input, *seed);
   if (seed_overridden_) last_centroid_mm_.reset();  // a new object: no motion to carry
-  std::optional<WarmStart> warm;
-  if (start.warm) {
-    // The inset: 3 voxels, plus how far the object moved last time (it may move as far again).
-    // (128³ cyst-needle at 10 volumes/s: at 2 voxels 14 warm volumes in a row drifted to Dice
-    // 0.975-0.979 against the truth, cold 0.982-0.984; at 3 the stream's mean is 0.9843.)
-    const float vox_mm = input.spacing_mm().minCoeff();
-    warm = WarmStart{std::move(previous_->balloon), std::move(previous_->balloon_stop),
-                     (3.0f + previous_->motion_vox) * vox_mm, previous_->genus};
-  }
-  previous_.reset();  // kept again below from this result, if it succeeds
+  const std::optional<WarmStart> warm = take_warm_start(input, start);
   PipelineResult result;
   try {
     result =
@@ -206,6 +197,21 @@ void Worker::process(QueuedVolume item) {
   v.input = std::make_shared<const volume::Volume>(std::move(input));
   out.line = std::move(line);
   out_.push(std::move(out));
+}
+
+// The previous balloon, given up whatever the decision (kept again from this volume's result).
+// The inset: 3 voxels, plus how far the object moved last time (it may move as far again); at 2
+// voxels warm volumes drifted from the truth (docs/tuning.md).
+std::optional<WarmStart> Worker::take_warm_start(const volume::Volume& input,
+                                                 const StartDecision& start) {
+  std::optional<WarmStart> warm;
+  if (start.warm) {
+    const float vox_mm = input.spacing_mm().minCoeff();
+    warm = WarmStart{std::move(previous_->balloon), std::move(previous_->balloon_stop),
+                     (3.0f + previous_->motion_vox) * vox_mm, previous_->genus};
+  }
+  previous_.reset();
+  return warm;
 }
 
 // Cold unless the last result can start this one (seed_policy.h, decide_start).

@@ -46,6 +46,7 @@ class Worker {
   // How this volume's balloon starts (issue 17), and what the next one needs from this result.
   StartDecision choose_start(const volume::Volume& input, const SeedCandidate& seed) const;
   void keep_for_warm_start(const volume::Volume& input, PipelineResult& result);
+  std::optional<WarmStart> take_warm_start(const volume::Volume& input, const StartDecision& start);
 
   // What the next volume's warm start needs from the last result; empty after a failure.
   struct Previous {
