@@ -136,9 +136,9 @@ bool LevelStop::in_shadow(const ImageSampler& sampler, const Vec3f& p, const Vec
   return NormalCross(n, step_mm).mean(sampler, p, -3, -1) < kShadowFraction * target;
 }
 
-// Pairs of samples kChannelRadiusVox across the normal on either side: in the open target they
-// lie at the vertex's own depth, inside; in a channel or a slab narrower than twice that (a
-// needle's shadow is a sheet) both lie in the wall.
+// Pairs of crosses kChannelRadiusVox across the normal on either side: in the open target they
+// lie at the vertex's own depth, inside; in a channel or a slab narrower than twice that both
+// lie in the wall.
 bool LevelStop::in_channel(const ImageSampler& sampler, const Vec3f& p, const Vec3f& n) const {
   const NormalCross cross(n, kChannelRadiusVox * step_mm);
   const std::array<Vec3f, 4> across = {cross.u, cross.w, (cross.u + cross.w) * 0.7071f,

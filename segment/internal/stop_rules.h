@@ -74,8 +74,8 @@ struct LevelStop {
   /// Whether the image behind p is well below the target's level (a shadow): there the
   /// relative Ψ_cost, which scales with the shadow, decides.
   bool in_shadow(const ImageSampler& sampler, const Vec3f& p, const Vec3f& n) const;
-  /// Whether p lies in a channel through the wall (a shadow's column behind a needle, a gap):
-  /// most of a ring across the normal around p is above the level.
+  /// Whether p lies in a channel or a slab through the wall (a gap): on both sides of p, 2.5
+  /// voxels away along one of four directions across the normal, the image is above the level.
   bool in_channel(const ImageSampler& sampler, const Vec3f& p, const Vec3f& n) const;
   /// Where the cross along n first rises above wall_level, within `ahead_mm` (p if nowhere).
   Vec3f snap(const ImageSampler& sampler, const Vec3f& p, const Vec3f& n, float wall_level,
@@ -129,8 +129,9 @@ struct CostRule {
 
   /// advance(), then the region term: a stop while the image ahead along the normal n still
   /// looks like the inside is overruled and the vertex takes the whole step. With the level stop
-  /// on, Ψ_cost's stop stands only before a thin bright structure, and the level stop decides
-  /// the rest; it sets `level_wall` (0 when it did not fire: the stop, if any, is Ψ_cost's).
+  /// on, Ψ_cost's stop stands only before a thin bright structure and in a shadow, and the level
+  /// stop decides the rest; it sets `level_wall` (0 when it did not fire: the stop, if any, is
+  /// Ψ_cost's or the channel's, and the wall snap applies).
   float step(const ImageSampler& sampler, const Vec3f& p, const Vec3f& d, const Vec3f& n,
              float& cost, float& floor_level, float& path_mm, bool& stopped,
              float& level_wall) const {
@@ -143,12 +144,9 @@ struct CostRule {
       path_mm += (1.0f - t) * d.norm();
       t = 1.0f;
     }
-    if (!stopped && level.on()) {
-      if (level.wall_ahead(sampler, p + t * d, n, level_wall))
-        stopped = true;
-      else if (level.in_channel(sampler, p + t * d, n))
-        stopped = true;
-    }
+    if (!stopped && level.on())
+      stopped = level.wall_ahead(sampler, p + t * d, n, level_wall) ||
+                level.in_channel(sampler, p + t * d, n);
     return t;
   }
 };
