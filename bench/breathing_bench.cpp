@@ -4,8 +4,8 @@
 //   breathing_bench [--phantom cyst-needle] [--size 128] [--spacing 0.4] [--volumes 40]
 //                   [--rate 10] [--warm] [--quiet]
 // --warm: each volume's balloon starts inside the previous one's (daemon::WarmStart, 3 voxels in,
-// as the daemon's worker with a still target)
-// and the seed is the previous deepest point, as the daemon's worker runs it (issue 17).
+// as the daemon's worker with a still target) and the seed is the previous deepest point, as the
+// daemon's worker runs it (issue 17).
 // A breathing target should land on a handful of grid sizes, so plans stop being made after the
 // first few volumes (issue 17).
 #include <CLI/CLI.hpp>
@@ -22,55 +22,25 @@
 #include "reconstruct/internal/fft_plans.h"
 #include "sim/sim.h"
 
-int main(int argc, char** argv) {
-  using namespace sonomesh;
-  CLI::App app{"breathing_bench: grid sizes and FFTW plans over a breathing phantom stream"};
+namespace {
+
+using namespace sonomesh;
+
+struct Args {
   std::string phantom = "cyst-needle";
   int size_vox = 128, volumes = 40;
   float spacing_mm = 0.4f, rate_hz = 10.0f;
   bool quiet = false, warm_start = false;
-  app.add_option("--phantom", phantom);
-  app.add_option("--size", size_vox)->check(CLI::Range(16, 512));
-  app.add_option("--spacing", spacing_mm)->check(CLI::PositiveNumber);
-  app.add_option("--volumes", volumes)->check(CLI::Range(1, 1000));
-  app.add_option("--rate", rate_hz)->check(CLI::PositiveNumber);
-  app.add_flag("--quiet", quiet, "summary only");
-  app.add_flag("--warm", warm_start, "warm start from the previous volume's balloon");
-  CLI11_PARSE(app, argc, argv);
+};
 
-  daemon::PipelineConfig config;
-  daemon::PipelineBuffers buffers;
+// What the stream's volumes add up to.
+struct Tally {
   std::set<std::tuple<int, int, int>> grids;
   std::vector<double> reconstruct_ms, total_ms, balloon_ms, labels_ms, start_mesh_ms, warm_total_ms;
   double dice_min = 1.0, dice_sum = 0.0;
   int genus_wrong = 0, failed = 0, warm_count = 0;
-  std::optional<daemon::WarmStart> warm;
-  std::optional<volume::Vec3f> tracked_mm;
-  const std::size_t plans_before = reconstruct::internal::fft_plan_stats().plans_created;
-  if (!quiet)
-    std::printf("%4s %-12s %7s %5s %9s %8s %5s %6s %10s\n", "vol", "grid", "cell_mm", "plans",
-                "recon_ms", "total_ms", "genus", "dice", "balloon_ms");
-  for (int i = 0; i < volumes; ++i) {
-    const sim::Phantom p = sim::make_phantom({.phantom = phantom,
-                                              .size_vox = size_vox,
-                                              .spacing_mm = volume::Vec3f::Constant(spacing_mm),
-                                              .time_s = float(i) / rate_hz});
-    const std::size_t plans0 = reconstruct::internal::fft_plan_stats().plans_created;
-    daemon::PipelineResult r = daemon::run_pipeline(p.image, tracked_mm.value_or(p.seed_mm), config,
-                                                    buffers, warm ? &*warm : nullptr);
-    warm.reset();
-    if (warm_start && r.ok) {
-      warm = daemon::WarmStart{r.balloon, r.balloon_stop, 3.0f * spacing_mm};
-      tracked_mm = r.deepest_interior_mm;
-    }
-    warm_count += r.warm_start;
-    const std::size_t plans = reconstruct::internal::fft_plan_stats().plans_created - plans0;
-    if (!r.ok || !r.labels) {
-      ++failed;
-      std::printf("%4d failed: %s\n", i, r.error.c_str());
-      continue;
-    }
-    const double dice = daemon::internal::dice(*r.labels, p.truth);
+
+  void add(const daemon::PipelineResult& r, const sim::Phantom& p, double dice) {
     dice_min = std::min(dice_min, dice);
     dice_sum += dice;
     genus_wrong += r.topology.genus != p.genus;
@@ -83,33 +53,93 @@ int main(int argc, char** argv) {
       start_mesh_ms.push_back(r.balloon_stats.start_mesh_ms);
       warm_total_ms.push_back(r.timings.total_ms);
     }
-    if (!quiet)
-      std::printf(
-          "%4d %3dx%3dx%3d %7.3f %5zu %9.1f %8.1f %5d %6.4f %8.1f it %d vit %lld evolve "
-          "%.0f remesh %.0f start %.1f %s\n",
-          i, r.grid_dims.x(), r.grid_dims.y(), r.grid_dims.z(), r.grid_cell_mm, plans,
-          r.timings.reconstruct_ms, r.timings.total_ms, r.topology.genus, dice,
-          r.timings.balloon_ms, r.balloon_iterations,
-          static_cast<long long>(r.balloon_stats.vertex_iterations), r.balloon_stats.evolve_ms,
-          r.balloon_stats.remesh_ms, r.balloon_stats.start_mesh_ms,
-          r.warm_start ? "warm" : r.start_reason.c_str());
   }
-  auto pct = [](std::vector<double> v, double q) {
-    if (v.empty()) return 0.0;
-    std::sort(v.begin(), v.end());
-    return v[std::min(v.size() - 1, std::size_t(q * double(v.size())))];
-  };
-  const int ok = volumes - failed;
+};
+
+double pct(std::vector<double> v, double q) {
+  if (v.empty()) return 0.0;
+  std::sort(v.begin(), v.end());
+  return v[std::min(v.size() - 1, std::size_t(q * double(v.size())))];
+}
+
+void print_row(int i, const daemon::PipelineResult& r, std::size_t plans, double dice) {
+  std::printf(
+      "%4d %3dx%3dx%3d %7.3f %5zu %9.1f %8.1f %5d %6.4f %8.1f it %d vit %lld evolve "
+      "%.0f remesh %.0f start %.1f %s\n",
+      i, r.grid_dims.x(), r.grid_dims.y(), r.grid_dims.z(), r.grid_cell_mm, plans,
+      r.timings.reconstruct_ms, r.timings.total_ms, r.topology.genus, dice, r.timings.balloon_ms,
+      r.balloon_iterations, static_cast<long long>(r.balloon_stats.vertex_iterations),
+      r.balloon_stats.evolve_ms, r.balloon_stats.remesh_ms, r.balloon_stats.start_mesh_ms,
+      r.warm_start ? "warm" : r.start_reason.c_str());
+}
+
+void print_summary(const Args& a, const Tally& t, std::size_t plans) {
+  const int ok = a.volumes - t.failed;
   std::printf(
       "%s %d³ x%d: grid sizes %zu, FFTW plans %zu, reconstruct p50 %.1f p90 %.1f ms, total p50 "
       "%.1f ms, genus wrong %d, Dice mean %.4f min %.4f, failed %d\n"
       "  warm starts %d of %d, balloon p50 %.1f ms, labels+deepest p50 %.1f ms\n"
       "  warm volumes: start mesh min %.1f p50 %.1f p90 %.1f ms, total p50 %.1f ms\n",
-      phantom.c_str(), size_vox, volumes, grids.size(),
-      reconstruct::internal::fft_plan_stats().plans_created - plans_before,
-      pct(reconstruct_ms, 0.5), pct(reconstruct_ms, 0.9), pct(total_ms, 0.5), genus_wrong,
-      ok > 0 ? dice_sum / ok : 0.0, dice_min, failed, warm_count, volumes, pct(balloon_ms, 0.5),
-      pct(labels_ms, 0.5), pct(start_mesh_ms, 0.0), pct(start_mesh_ms, 0.5),
-      pct(start_mesh_ms, 0.9), pct(warm_total_ms, 0.5));
-  return failed == 0 ? 0 : 1;
+      a.phantom.c_str(), a.size_vox, a.volumes, t.grids.size(), plans, pct(t.reconstruct_ms, 0.5),
+      pct(t.reconstruct_ms, 0.9), pct(t.total_ms, 0.5), t.genus_wrong,
+      ok > 0 ? t.dice_sum / ok : 0.0, t.dice_min, t.failed, t.warm_count, a.volumes,
+      pct(t.balloon_ms, 0.5), pct(t.labels_ms, 0.5), pct(t.start_mesh_ms, 0.0),
+      pct(t.start_mesh_ms, 0.5), pct(t.start_mesh_ms, 0.9), pct(t.warm_total_ms, 0.5));
+}
+
+// The stream, volume by volume, as the daemon's worker runs it: buffers reused and, with --warm,
+// the previous balloon (3 voxels in, its genus checked) and deepest point carried forward.
+Tally run_stream(const Args& a) {
+  daemon::PipelineConfig config;
+  daemon::PipelineBuffers buffers;
+  Tally t;
+  std::optional<daemon::WarmStart> warm;
+  std::optional<volume::Vec3f> tracked_mm;
+  for (int i = 0; i < a.volumes; ++i) {
+    const sim::Phantom p = sim::make_phantom({.phantom = a.phantom,
+                                              .size_vox = a.size_vox,
+                                              .spacing_mm = volume::Vec3f::Constant(a.spacing_mm),
+                                              .time_s = float(i) / a.rate_hz});
+    const std::size_t plans0 = reconstruct::internal::fft_plan_stats().plans_created;
+    const daemon::PipelineResult r = daemon::run_pipeline(p.image, tracked_mm.value_or(p.seed_mm),
+                                                          config, buffers, warm ? &*warm : nullptr);
+    warm.reset();
+    if (a.warm_start && r.ok) {
+      warm = daemon::WarmStart{r.balloon, r.balloon_stop, 3.0f * a.spacing_mm, r.topology.genus};
+      tracked_mm = r.deepest_interior_mm;
+    }
+    t.warm_count += r.warm_start;
+    if (!r.ok || !r.labels) {
+      ++t.failed;
+      std::printf("%4d failed: %s\n", i, r.error.c_str());
+      continue;
+    }
+    const double dice = daemon::internal::dice(*r.labels, p.truth);
+    t.add(r, p, dice);
+    if (!a.quiet)
+      print_row(i, r, reconstruct::internal::fft_plan_stats().plans_created - plans0, dice);
+  }
+  return t;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{"breathing_bench: grid sizes and FFTW plans over a breathing phantom stream"};
+  Args a;
+  app.add_option("--phantom", a.phantom);
+  app.add_option("--size", a.size_vox)->check(CLI::Range(16, 512));
+  app.add_option("--spacing", a.spacing_mm)->check(CLI::PositiveNumber);
+  app.add_option("--volumes", a.volumes)->check(CLI::Range(1, 1000));
+  app.add_option("--rate", a.rate_hz)->check(CLI::PositiveNumber);
+  app.add_flag("--quiet", a.quiet, "summary only");
+  app.add_flag("--warm", a.warm_start, "warm start from the previous volume's balloon");
+  CLI11_PARSE(app, argc, argv);
+  if (!a.quiet)
+    std::printf("%4s %-12s %7s %5s %9s %8s %5s %6s %10s\n", "vol", "grid", "cell_mm", "plans",
+                "recon_ms", "total_ms", "genus", "dice", "balloon_ms");
+  const std::size_t plans_before = reconstruct::internal::fft_plan_stats().plans_created;
+  const Tally t = run_stream(a);
+  print_summary(a, t, reconstruct::internal::fft_plan_stats().plans_created - plans_before);
+  return t.failed == 0 ? 0 : 1;
 }
