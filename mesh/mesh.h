@@ -70,6 +70,12 @@ int euler_characteristic(const Mesh& mesh);
 /// Topology::volume_ml alone: for a mesh whose vertices moved but whose connectivity did not.
 double enclosed_volume_ml(const Mesh& mesh);
 
+/// The axis-aligned box of a mesh's vertices (mm); lo = hi = 0 for a mesh without vertices.
+struct Box {
+  Vec3f lo_mm = Vec3f::Zero(), hi_mm = Vec3f::Zero();
+};
+Box bounding_box(const Mesh& mesh);
+
 /// Splits a mesh into its connected components (by shared vertices), vertices renumbered.
 std::vector<Mesh> connected_components(const Mesh& mesh);
 

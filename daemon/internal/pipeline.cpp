@@ -144,13 +144,10 @@ segment::BalloonResult balloon_stage(const PipelineBuffers& buffers, const Vec3f
 void deepest_point(const reconstruct::SurfaceResult& surface, const Vec3f& seed_mm,
                    const volume::Volume& input, PipelineResult& result) {
   const auto t = Clock::now();
-  Vec3f lo_mm = result.mesh.vertices.front(), hi_mm = lo_mm;
-  for (const Vec3f& v : result.mesh.vertices) {
-    lo_mm = lo_mm.cwiseMin(v);
-    hi_mm = hi_mm.cwiseMax(v);
-  }
-  if (const auto deepest = internal::deepest_inside(surface.indicator, surface.iso, lo_mm, hi_mm,
-                                                    seed_mm, input.spacing_mm().minCoeff()))
+  const mesh::Box box = mesh::bounding_box(result.mesh);
+  if (const auto deepest =
+          internal::deepest_inside(surface.indicator, surface.iso, box.lo_mm, box.hi_mm, seed_mm,
+                                   input.spacing_mm().minCoeff()))
     result.deepest_interior_mm =
         input.index_to_mm(input.mm_to_index(deepest->position_mm).array().round().matrix());
   result.timings.labels_ms += ms_since(t);

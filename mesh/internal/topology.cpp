@@ -187,6 +187,16 @@ int euler_characteristic(const Mesh& mesh) {
 
 double enclosed_volume_ml(const Mesh& mesh) { return signed_volume_mm3(mesh) / 1000.0; }
 
+Box bounding_box(const Mesh& mesh) {
+  if (mesh.vertices.empty()) return {};
+  Box box{mesh.vertices.front(), mesh.vertices.front()};
+  for (const Vec3f& p : mesh.vertices) {
+    box.lo_mm = box.lo_mm.cwiseMin(p);
+    box.hi_mm = box.hi_mm.cwiseMax(p);
+  }
+  return box;
+}
+
 std::vector<Mesh> connected_components(const Mesh& mesh) {
   check_indices(mesh, "connected_components");
   int n = 0;

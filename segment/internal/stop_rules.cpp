@@ -124,10 +124,7 @@ bool LevelStop::bright_ahead(const ImageSampler& sampler, const Vec3f& p, const 
   }
   if (top_value <= peak) return false;
   const float half = 0.5f * (top_value + target);
-  const NormalCross cross(n, kLineReachVox * step_mm);
-  const std::array<Vec3f, 4> across = {cross.u, cross.w, (cross.u + cross.w) * 0.7071f,
-                                       (cross.u - cross.w) * 0.7071f};
-  for (const Vec3f& a : across)
+  for (const Vec3f& a : NormalCross(n, kLineReachVox * step_mm).across())
     if (sampler.value(top + a) > half && sampler.value(top - a) > half) return true;
   return false;
 }
@@ -140,9 +137,6 @@ bool LevelStop::in_shadow(const ImageSampler& sampler, const Vec3f& p, const Vec
 // lie at the vertex's own depth, inside; in a channel or a slab narrower than twice that both
 // lie in the wall.
 bool LevelStop::in_channel(const ImageSampler& sampler, const Vec3f& p, const Vec3f& n) const {
-  const NormalCross cross(n, kChannelRadiusVox * step_mm);
-  const std::array<Vec3f, 4> across = {cross.u, cross.w, (cross.u + cross.w) * 0.7071f,
-                                       (cross.u - cross.w) * 0.7071f};
   // Each side is a cross of five samples (on the side and a voxel along n and along n × a).
   auto side = [&](const Vec3f& q, const Vec3f& a) {
     const Vec3f along = step_mm * n, beside = step_mm * n.cross(a.normalized());
@@ -150,7 +144,7 @@ bool LevelStop::in_channel(const ImageSampler& sampler, const Vec3f& p, const Ve
             sampler.value(q + beside) + sampler.value(q - beside)) /
            5.0f;
   };
-  for (const Vec3f& a : across)
+  for (const Vec3f& a : NormalCross(n, kChannelRadiusVox * step_mm).across())
     if (side(p + a, a) > level && side(p - a, a) > level) return true;
   return false;
 }

@@ -4,6 +4,7 @@
 /// by reinflate (segment.h documents the options; docs/tuning.md the measurements).
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <limits>
 
@@ -48,6 +49,8 @@ struct NormalCross {
   NormalCross(const Vec3f& normal, float step);
   /// Mean of the crosses at k·step_mm along n for k in [k0, k1] (negative: behind p).
   float mean(const ImageSampler& sampler, const Vec3f& p, int k0, int k1) const;
+  /// Four directions across n, 45° apart, each step_mm long.
+  std::array<Vec3f, 4> across() const { return {u, w, (u + w) * 0.7071f, (u - w) * 0.7071f}; }
 };
 
 /// The level stop (BalloonOptions::level_stop_fraction): the region ahead of a vertex is the

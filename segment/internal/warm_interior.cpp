@@ -54,11 +54,7 @@ struct CellBox {
 };
 
 CellBox box_around(const Mesh& m, float cell_mm) {
-  Vec3f lo = m.vertices.front(), hi = lo;
-  for (const Vec3f& p : m.vertices) {
-    lo = lo.cwiseMin(p);
-    hi = hi.cwiseMax(p);
-  }
+  const auto [lo, hi] = mesh::bounding_box(m);
   CellBox box;
   box.cell_mm = cell_mm;
   box.origin_mm = lo - Vec3f::Constant(static_cast<float>(kMarginCells) * cell_mm);
