@@ -94,6 +94,7 @@ json measure(const sim::PhantomSpec& spec, const daemon::RunConfig& config, int 
               {"components", result.topology.components},
               {"quality", result.quality_ok ? "ok" : "suspect"},
               {"quality_reasons", result.quality_reasons},
+              {"wall_support", result.wall_support},
               {"stops", {s.boundary, s.curvature, s.self_intersection, s.iteration_limit}}});
   return row;
 }

@@ -102,6 +102,9 @@ struct PipelineResult {
   /// "stalled near the seed", "touches the volume edge", "leak bound", "implausibly small").
   bool quality_ok = true;
   std::vector<std::string> quality_reasons;
+  /// Share of the final surface's vertices with a brighter wall just beyond them in the image the
+  /// balloon saw (the verdict wants 3/4); −1 when not measured (no surface).
+  float wall_support = -1.0f;
   /// The speckle's grain measured around the seed and the pre-filter's sigma it chose (mm).
   float speckle_grain_mm = 0.0f;
   float smooth_sigma_mm = 0.0f;

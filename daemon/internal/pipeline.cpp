@@ -223,7 +223,7 @@ PipelineResult run_pipeline(const volume::Volume& input, const Vec3f& seed_mm,
   auto finish = [&](std::string error) {
     result.ok = error.empty();
     result.error = std::move(error);
-    internal::quality_verdict(input, no_data, seed_mm, result);
+    internal::quality_verdict(input, buffers.smoothed, no_data, seed_mm, result);
     result.timings.total_ms = ms_since(start);
     return std::move(result);
   };

@@ -30,6 +30,7 @@ nlohmann::json report_json(const PipelineResult& result, const std::string& inpu
   report["target"] = to_string(result.target);
   report["quality"] = result.quality_ok ? "ok" : "suspect";
   report["quality_reasons"] = result.quality_reasons;
+  if (result.wall_support >= 0.0f) report["wall_support"] = result.wall_support;
   report["start"] = result.warm_start ? "warm" : "cold";
   if (!result.start_reason.empty()) report["start_reason"] = result.start_reason;
   report["smoothing"] = {{"sigma_mm", result.smooth_sigma_mm},

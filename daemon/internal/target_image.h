@@ -29,10 +29,19 @@ TargetPolarity decide_polarity(const volume::Volume& input, const Vec3f& seed_mm
 bool working_image(const volume::Volume& input, TargetPolarity target,
                    const std::vector<std::uint8_t>& no_data, volume::Volume& out);
 
+/// Share of the surface's vertices (up to 4000 of them, evenly spread) with a wall beyond them in
+/// the smoothed image the balloon saw: the mean 2-5 voxels outside above the mean 1-3 voxels
+/// inside by half the contrast between `target_level` and `tissue_level`. −1 when it cannot be
+/// measured (no image, no surface, no contrast).
+float wall_support(const volume::Volume& smoothed, const segment::Mesh& surface, float target_level,
+                   float tissue_level);
+
 /// Fills result.quality_ok / quality_reasons (DESIGN.md "the quality verdict") from the balloon and
 /// the final surface: stalled near the seed, implausibly small, touching the volume's edge or the
-/// sector's (no data beyond), the iteration limit, the leak bound.
-void quality_verdict(const volume::Volume& input, const std::vector<std::uint8_t>& no_data,
-                     const Vec3f& seed_mm, PipelineResult& result);
+/// sector's (no data beyond), the iteration limit, the leak bound, and a wall_support under 3/4
+/// in `smoothed` (skipped when `smoothed` is empty).
+void quality_verdict(const volume::Volume& input, const volume::Volume& smoothed,
+                     const std::vector<std::uint8_t>& no_data, const Vec3f& seed_mm,
+                     PipelineResult& result);
 
 }  // namespace sonomesh::daemon::internal

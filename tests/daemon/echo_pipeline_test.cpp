@@ -4,6 +4,7 @@
 // wall instead. Numbers behind the bounds: docs/stopping.md.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <string>
 #include <tuple>
 
@@ -73,6 +74,28 @@ TEST(EchoPipeline, LevelStopFindsTheWallBehindSpeckleAtContrastHalf) {
     EXPECT_EQ(genus, genus_expected) << name;
     EXPECT_GE(dice, least_dice) << name;
   }
+}
+
+// The quality verdict's wall test: a surface that stopped on the blood pool's speckle (the sphere
+// at contrast 0.5 with the paper's stop alone, Dice about 0.7) has the same grey levels on both
+// sides over much of it; one on the wall (the level stop, Dice >= 0.9) has a wall beyond it.
+TEST(EchoPipeline, SurfaceStoppedOnSpeckleIsSuspect) {
+  const sim::Phantom sphere = echo_phantom("sphere", 0.5f);
+  PipelineConfig config;
+  const PipelineResult off = run_pipeline(sphere.image, sphere.seed_mm, config);
+  ASSERT_TRUE(off.ok) << off.error;
+  EXPECT_LT(off.wall_support, 0.75f);
+  EXPECT_FALSE(off.quality_ok);
+  EXPECT_NE(std::find(off.quality_reasons.begin(), off.quality_reasons.end(),
+                      "surface not on the target's wall"),
+            off.quality_reasons.end());
+  config.balloon.level_stop_fraction = 0.5f;
+  const PipelineResult on = run_pipeline(sphere.image, sphere.seed_mm, config);
+  ASSERT_TRUE(on.ok) << on.error;
+  EXPECT_GE(on.wall_support, 0.9f);
+  EXPECT_EQ(std::find(on.quality_reasons.begin(), on.quality_reasons.end(),
+                      "surface not on the target's wall"),
+            on.quality_reasons.end());
 }
 
 }  // namespace
