@@ -175,6 +175,11 @@ int run_process(const ProcessArgs& args) {
             args.report, report_json(result, args.input, input, seed_mm).dump(2) + "\n"))
       return fail(kFailed, *problem);
   }
+  // So is the balloon, when there is one: it shows where a failed reconstruction began.
+  if (!result.ok && !args.balloon.empty() && !result.balloon.triangles.empty())
+    if (auto problem =
+            internal::write_balloon_ply(result.balloon, result.balloon_stop, input, args.balloon))
+      return fail(kFailed, *problem);
   if (!result.ok) return fail(kFailed, args.input + ": " + result.error);
   warn_if_suspect(args, result);
   if (auto problem = write_outputs(args, result, input)) return fail(kFailed, *problem);

@@ -54,12 +54,9 @@ struct NormalCross {
 };
 
 /// The level stop (BalloonOptions::level_stop_fraction): the region ahead of a vertex is the
-/// wall when the crosses 1-3 and 4-6 voxels ahead are both above the wall level, which is
-/// `level` or, where the mean behind the vertex is darker than the target's level (a shadow, the
-/// deep end of an attenuated beam), `ratio` times that mean.
+/// wall when the crosses 1-3 and 4-6 voxels ahead are both above `level`.
 struct LevelStop {
   float level = 0.0f;  // the target's level plus the fraction of its contrast; 0 = off
-  float ratio = 0.0f;  // level / the target's level
   float step_mm = 0.0f;
   Vec3f box_lo, box_hi;  // the volume's usable box
 
@@ -71,7 +68,7 @@ struct LevelStop {
   /// ahead of p: the one wall the level stop misses (its far cross lies beyond it), so Ψ_cost's
   /// stop stands there.
   bool bright_ahead(const ImageSampler& sampler, const Vec3f& p, const Vec3f& n) const;
-  /// Whether the wall is ahead of p; sets the wall level that applies there.
+  /// Whether the wall is ahead of p; then sets `wall_level` to the level (the snap's).
   bool wall_ahead(const ImageSampler& sampler, const Vec3f& p, const Vec3f& n,
                   float& wall_level) const;
   /// Whether the image behind p is well below the target's level (a shadow): there the
