@@ -126,9 +126,12 @@ struct BalloonStats {
   std::int64_t vertex_iterations = 0;  // moving vertices summed over the iterations
   bool stalled = false;                // ended because nothing moved any more
   bool cancelled = false;              // ended because the stop_token was triggered
-  bool leaked = false;                 // ended at the leak bound (max_area_fraction); error set
-  std::size_t front_voxels = 0;        // voxels in A_t (swept by the front) at the end
-  std::size_t front_grid_bytes = 0;    // memory of A_t's sparse grid
+  bool leaked = false;                 // ended at the leak bound (max_area_fraction)
+  // Leaked, and the balloon is the one from this iteration, before the leak began (0: none kept,
+  // error set and no mesh).
+  int leak_rollback_iteration = 0;
+  std::size_t front_voxels = 0;      // voxels in A_t (swept by the front) at the end
+  std::size_t front_grid_bytes = 0;  // memory of A_t's sparse grid
 };
 
 struct BalloonResult {
@@ -147,8 +150,11 @@ struct BalloonResult {
 /// where the balloon samples it (no gradient volumes: 12 bytes per voxel the balloon never reads
 /// away from its path).
 /// A seed that is not in a hypoechoic region (brighter than or as bright as its surroundings,
-/// e.g. on the needle or in tissue), or a balloon that leaks out of its target (leak bound),
-/// gives a result with `error` set and an empty mesh.
+/// e.g. on the needle or in tissue) gives a result with `error` set and an empty mesh. A balloon
+/// that leaks out of its target (leak bound) has `stats.leaked`; its mesh is the balloon from
+/// before the leak began, its vertices at the gap still Moving (an estimate that a caller must
+/// flag, never a clean result), or, where no such balloon was kept, `error` is set and the mesh
+/// empty.
 /// @throws std::invalid_argument if `seed_mm` lies outside the volume, or for options out of range
 ///         (h·μ > 0.5 vox, h·λ ∉ [0, 1], non-positive edge length).
 BalloonResult inflate_balloon(const volume::Volume& smoothed, const Vec3f& seed_mm,

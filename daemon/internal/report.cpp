@@ -56,6 +56,9 @@ nlohmann::json report_json(const PipelineResult& result, const std::string& inpu
                          {"self_intersection", s.self_intersection},
                          {"iteration_limit", s.iteration_limit}}},
                        {"opened_points", result.opened_points}};
+  // A leaked balloon's surface is the one from before the leak (quality "leak bound").
+  if (result.balloon_stats.leaked)
+    report["balloon"]["leak_rollback_iteration"] = result.balloon_stats.leak_rollback_iteration;
   report["reconstruction"] = {{"grid", vec_json(result.grid_dims)},
                               {"cell_mm", result.grid_cell_mm}};
   // JSON has no infinity: the narrowest feature only when one was thin enough to matter.

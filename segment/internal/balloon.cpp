@@ -134,7 +134,8 @@ struct Prelude {
 BalloonResult evolve(const Prelude& pre, BalloonEvolution& evolution, BalloonResult& result,
                      std::stop_token stop) {
   evolution.run(std::move(stop));
-  if (result.stats.leaked) return pre.finish(result, evolution.leak_message());
+  if (result.stats.leaked && !evolution.rolled_back())
+    return pre.finish(result, evolution.leak_message());
   evolution.take_result(result.mesh, result.stop);
   result.converged = evolution.converged();
   return pre.finish(result, "");

@@ -69,6 +69,7 @@ BalloonEvolution::BalloonEvolution(const volume::Volume& smoothed, const ImageSa
 // S^0 in the flat arrays, every vertex moved: normals, and its band marked in A_t.
 void BalloonEvolution::begin() {
   extract(bm_, a_);
+  start_vertices_ = a_.pos.size();
   moved_.assign(a_.pos.size(), kMoved | kMarks);
   all_active();
   compute_normals();  // (every vertex starts as moved)
@@ -100,6 +101,7 @@ void BalloonEvolution::run(std::stop_token stop) {
     }
     if (it % options_.remesh_every_iterations == 0 && needs_remesh()) {
       remesh();
+      keep_before_leak(it, now_moving);
       if (a_.pos.size() > max_vertices_) {
         stats_.leaked = true;
         break;
@@ -351,6 +353,27 @@ void BalloonEvolution::remesh() {
   stats_.remesh_ms += ms_since(t_remesh);
 }
 
+// Called after a remeshing pass, when bm_ holds the current balloon, once it has twice the start's
+// vertices. A copy is made only when the
+// moving vertices fell by a tenth or the mesh grew by a tenth since the last one, so a balloon
+// closing in on its walls copies itself a few times, not at every pass.
+void BalloonEvolution::keep_before_leak(int iteration, int now_moving) {
+  if (bm_.n_vertices() < 2 * start_vertices_) return;  // S^0's first passes shed vertices
+  peak_moving_ = std::max(peak_moving_, now_moving);
+  if (4 * now_moving > 3 * peak_moving_) return;
+  if (before_leak_) {
+    if (now_moving >= before_leak_->moving) return;
+    const bool fewer = 10 * now_moving < 9 * before_leak_->moving;
+    const bool grown = 10 * bm_.n_vertices() > 11 * before_leak_->mesh.vertices.size();
+    if (!fewer && !grown) return;
+  }
+  Snapshot snapshot{to_plain_mesh(bm_), {}, iteration, now_moving};
+  snapshot.stop.reserve(snapshot.mesh.vertices.size());
+  for (std::uint32_t i = 0; i < bm_.n_vertices(); ++i)
+    if (!bm_.is_deleted(Vertex{i})) snapshot.stop.push_back(bm_.states()[i].reason);
+  before_leak_ = std::move(snapshot);
+}
+
 std::string BalloonEvolution::leak_message() const {
   if (!stats_.leaked) return {};
   return "the balloon leaked: " + std::to_string(a_.pos.size()) +
@@ -361,13 +384,17 @@ std::string BalloonEvolution::leak_message() const {
 }
 
 void BalloonEvolution::take_result(Mesh& mesh, std::vector<StopReason>& stop) {
-  mesh = to_plain_mesh(bm_);
-  stop.clear();
-  stop.reserve(mesh.vertices.size());
-  for (const auto& s : bm_.states()) {
-    stop.push_back(s.reason);
-    ++stats_.stop_counts[static_cast<std::size_t>(s.reason)];
+  if (rolled_back()) {
+    mesh = std::move(before_leak_->mesh);
+    stop = std::move(before_leak_->stop);
+    stats_.leak_rollback_iteration = before_leak_->iteration;
+  } else {
+    mesh = to_plain_mesh(bm_);
+    stop.clear();
+    stop.reserve(mesh.vertices.size());
+    for (const auto& s : bm_.states()) stop.push_back(s.reason);
   }
+  for (const StopReason r : stop) ++stats_.stop_counts[static_cast<std::size_t>(r)];
 }
 
 }  // namespace sonomesh::segment::internal

@@ -5,6 +5,7 @@
 
 #include <cstdint>
 #include <limits>
+#include <optional>
 #include <stop_token>
 #include <string>
 #include <vector>
@@ -46,6 +47,9 @@ class BalloonEvolution {
   bool converged() const { return all_stopped_ || stats_.stalled; }
   /// Why the leak bound ended it (empty unless stats.leaked).
   std::string leak_message() const;
+  /// The leak bound ended it, and the balloon as it was before the leak began is kept: take_result
+  /// gives that one (stats.leak_rollback_iteration says from when).
+  bool rolled_back() const { return stats_.leaked && before_leak_.has_value(); }
   /// The balloon and its stop reasons (counted into stats.stop_counts).
   void take_result(Mesh& mesh, std::vector<StopReason>& stop);
 
@@ -67,6 +71,7 @@ class BalloonEvolution {
   bool stall_test(int now_moving);
   bool needs_remesh() const;
   void remesh();
+  void keep_before_leak(int iteration, int now_moving);
 
   const volume::Volume& smoothed_;
   const ImageSampler& sampler_;
@@ -89,6 +94,18 @@ class BalloonEvolution {
   std::vector<std::uint32_t> window_;
   std::vector<std::uint8_t> moved_;
   std::vector<Vec3i> pending_;  // A_t samples to mark, slot r + v of vertex v's ring range
+
+  // The balloon at the remeshing pass with the fewest moving vertices since their number fell a
+  // quarter below its peak: a leak begins where that number turns to grow again.
+  struct Snapshot {
+    Mesh mesh;
+    std::vector<StopReason> stop;
+    int iteration = 0;
+    int moving = 0;
+  };
+  std::optional<Snapshot> before_leak_;
+  int peak_moving_ = 0;
+  std::size_t start_vertices_ = 0;
 
   bool all_stopped_ = false;
   int fewest_moving_ = std::numeric_limits<int>::max();
