@@ -170,7 +170,9 @@ TEST(RealDataPipeline, TargetCutBySectorEdgeIsSuspect) {
   config.want_labels = false;
   const PipelineResult r = run_pipeline(image, phantom.seed_mm, config);
   EXPECT_FALSE(r.quality_ok);
-  if (r.ok) EXPECT_NE(reasons(r).find("sector edge"), std::string::npos) << reasons(r);
+  if (r.ok) {
+    EXPECT_NE(reasons(r).find("sector edge"), std::string::npos) << reasons(r);
+  }
 }
 
 }  // namespace
