@@ -46,8 +46,8 @@ void print_header() {
       "| phantom | size | speckle | contrast | Dice | balloon Dice | result/truth volume | MSD "
       "(vox) | HD95 (vox) "
       "| genus expected | genus found | watertight | components | total ms (median) "
-      "| balloon stops B/C/S/I | volume error | quality |\n");
-  std::printf("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n");
+      "| balloon stops B/C/S/I | volume error | quality | stop rule |\n");
+  std::printf("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n");
 }
 
 // One case: the pipeline `repeat` times on the phantom, the last result measured.
@@ -95,8 +95,17 @@ json measure(const sim::PhantomSpec& spec, const daemon::RunConfig& config, int 
               {"quality", result.quality_ok ? "ok" : "suspect"},
               {"quality_reasons", result.quality_reasons},
               {"wall_support", result.wall_support},
+              {"stop_rule", result.stop_rule},
+              {"second_opinion", result.second_opinion},
               {"stops", {s.boundary, s.curvature, s.self_intersection, s.iteration_limit}}});
   return row;
+}
+
+// "cost" or "level", and whether the pipeline's second opinion ran ("tried") or gave the result.
+std::string stop_rule(const json& r) {
+  const std::string rule = r.value("stop_rule", "");
+  if (!r.value("second_opinion", false)) return rule;
+  return rule == "level" ? "level (second opinion)" : rule + " (second opinion tried)";
 }
 
 void print_row(const json& r) {
@@ -108,7 +117,7 @@ void print_row(const json& r) {
           : "suspect: " + joined(r["quality_reasons"].get<std::vector<std::string>>());
   if (!r["ok"].get<bool>()) {
     std::printf(
-        "| %s | %d | %.2f | %.2f | failed: %s |  |  |  |  | %d |  |  |  | %.1f |  |  |  |\n",
+        "| %s | %d | %.2f | %.2f | failed: %s |  |  |  |  | %d |  |  |  | %.1f |  |  |  |  |\n",
         name.c_str(), r["size"].get<int>(), r["speckle"].get<double>(), r["contrast"].get<double>(),
         r["error"].get<std::string>().c_str(), r["genus_expected"].get<int>(),
         r["total_ms"].get<double>());
@@ -117,13 +126,14 @@ void print_row(const json& r) {
   const auto& s = r["stops"];
   std::printf(
       "| %s | %d | %.2f | %.2f | %.3f | %.3f | %.3f | %.2f | %.2f | %d | %d | %s | %d | %.1f "
-      "| %d/%d/%d/%d | %+.1f %% | %s |\n",
+      "| %d/%d/%d/%d | %+.1f %% | %s | %s |\n",
       name.c_str(), r["size"].get<int>(), r["speckle"].get<double>(), r["contrast"].get<double>(),
       r["dice"].get<double>(), r["balloon_dice"].get<double>(), r["volume_ratio"].get<double>(),
       r["msd_vox"].get<double>(), r["hd95_vox"].get<double>(), r["genus_expected"].get<int>(),
       r["genus_found"].get<int>(), r["watertight"].get<bool>() ? "yes" : "no",
       r["components"].get<int>(), r["total_ms"].get<double>(), s[0].get<int>(), s[1].get<int>(),
-      s[2].get<int>(), s[3].get<int>(), 100.0 * r["volume_error"].get<double>(), quality.c_str());
+      s[2].get<int>(), s[3].get<int>(), 100.0 * r["volume_error"].get<double>(), quality.c_str(),
+      stop_rule(r).c_str());
 }
 
 // One row per (realism, contrast): how many cases and how many failed, Dice median and worst (a

@@ -46,6 +46,12 @@ struct PipelineConfig {
   /// (segment::reinflate): gives back what the reconstruction's smoothing takes from thin parts.
   bool reinflate = true;
   segment::ReinflateOptions reinflate_pass;
+  /// The second opinion (docs/stopping.md departure 9): a result the verdict calls suspect, or
+  /// no result, is segmented again with the level stop at this fraction
+  /// (segment::BalloonOptions::level_stop_fraction), and the better of the two is kept: the one
+  /// the verdict calls ok, else the one with the larger wall support. 0 = off; not tried when
+  /// balloon.level_stop_fraction is already set.
+  float second_opinion_level_stop = 0.5f;
   bool want_labels = true;      // label volume on the input grid (inside = 1); seed tracking
                                 // does not need it (deepest_interior_mm comes from χ)
   bool want_indicator = false;  // the indicator function χ as a Float32 volume (for .vdb output)
@@ -113,6 +119,10 @@ struct PipelineResult {
   /// a warm start that was asked for was not used (the pipeline's safety check said so).
   bool warm_start = false;
   std::string start_reason;
+  /// The balloon's stop rule behind this result: "cost" (Ψ_cost, the paper's) or "level" (the
+  /// level stop, as configured or as the second opinion); and whether the second opinion ran.
+  std::string stop_rule = "cost";
+  bool second_opinion = false;
 
   StageTimings timings;
   std::optional<volume::Volume> labels;     // UInt8 on the input grid, inside = 1

@@ -52,7 +52,7 @@ echo_section() {
         for seed in $echo_seeds; do
           "$accuracy" --realism echo --phantom "$phantom" --size "$size" --contrast "$contrast" \
             --seed "$seed" --repeat 1 --jsonl "$rows" \
-            || echo "| $phantom (echo) | $size | | $contrast | accuracy_report failed (exit $?) | | | | | | | | | | | | |"
+            || echo "| $phantom (echo) | $size | | $contrast | accuracy_report failed (exit $?) | | | | | | | | | | | | | |"
         done
       done
     done
@@ -97,7 +97,7 @@ trap 'rm -f "$tmp"' EXIT
     for speckle in $speckles; do
       for phantom in $phantoms; do
         "$accuracy" --phantom "$phantom" --size "$size" --speckle "$speckle" --repeat "$repeat" \
-          || echo "| $phantom | $size | $speckle | | accuracy_report failed (exit $?) | | | | | | | | | | | | |"
+          || echo "| $phantom | $size | $speckle | | accuracy_report failed (exit $?) | | | | | | | | | | | | | |"
       done
     done
   done

@@ -212,32 +212,17 @@ void labels_stage(const volume::Volume& input, PipelineResult& result) {
   result.timings.labels_ms += ms_since(t);
 }
 
-}  // namespace
-
-PipelineResult run_pipeline(const volume::Volume& input, const Vec3f& seed_mm,
-                            const PipelineConfig& config, PipelineBuffers& buffers,
-                            const WarmStart* warm, std::stop_token stop) {
-  const auto start = Clock::now();
-  PipelineResult result;
-  std::vector<std::uint8_t> no_data;  // (set in §0)
-  auto finish = [&](std::string error) {
-    result.ok = error.empty();
-    result.error = std::move(error);
-    internal::quality_verdict(input, buffers.smoothed, no_data, seed_mm, result);
-    result.timings.total_ms = ms_since(start);
-    return std::move(result);
-  };
-  if (input.empty()) return finish("the volume is empty");
-  // The balloon's own precondition (it throws for a seed outside the volume); checked here so a
-  // tracked seed that drifted out becomes a failed volume, not an exception.
-  if (!seed_mm.allFinite() || !input.contains_mm(seed_mm))
-    return finish("the seed lies outside the volume");
-  smooth_stage(input, seed_mm, config, buffers, no_data, result);
-  if (stop.stop_requested()) return finish("stopped");
+// §1-5 and the second pass, after the smoothing: the balloon (warm, or cold), the surface, the
+// reinflation. Returns the error, empty if there is a surface.
+std::string segment_stages(const volume::Volume& input, const Vec3f& seed_mm,
+                           const PipelineConfig& config, const PipelineBuffers& buffers,
+                           const WarmStart* warm, const std::stop_token& stop,
+                           PipelineResult& result) {
+  result.stop_rule = config.balloon.level_stop_fraction > 0.0f ? "level" : "cost";
   const segment::BalloonResult balloon =
       balloon_stage(buffers, seed_mm, config, warm, stop, result);
-  if (stop.stop_requested()) return finish("stopped");
-  if (!balloon.error.empty()) return finish("balloon: " + balloon.error);
+  if (stop.stop_requested()) return "stopped";
+  if (!balloon.error.empty()) return "balloon: " + balloon.error;
   std::string error = surface_stage(input, seed_mm, config, result);
   // A warm result without a surface, or of another genus than the last (seen once at 128³
   // cyst-needle, 20 volumes/s: genus 0 where the target has 1), gets a cold start instead.
@@ -252,13 +237,70 @@ PipelineResult run_pipeline(const volume::Volume& input, const Vec3f& seed_mm,
     const segment::BalloonResult cold =
         balloon_stage(buffers, seed_mm, config, nullptr, stop, result);
     result.timings.balloon_ms += warm_ms;
-    if (stop.stop_requested()) return finish("stopped");
-    if (!cold.error.empty()) return finish("balloon: " + cold.error);
+    if (stop.stop_requested()) return "stopped";
+    if (!cold.error.empty()) return "balloon: " + cold.error;
     error = surface_stage(input, seed_mm, config, result);
   }
-  if (!error.empty()) return finish(std::move(error));
+  if (!error.empty()) return error;
   reinflate_stage(buffers, config, stop, result);
+  return stop.stop_requested() ? "stopped" : "";
+}
+
+// Whether `other` is the better of two results: a surface before none, an ok verdict before a
+// suspect one, and between two suspect ones the larger wall support (the verdict's own measure of
+// a surface on the target's wall rather than on speckle or in the tissue).
+bool better(const PipelineResult& other, const PipelineResult& first) {
+  if (other.ok != first.ok) return other.ok;
+  if (!other.ok) return false;
+  if (other.quality_ok != first.quality_ok) return other.quality_ok;
+  return !other.quality_ok && other.wall_support > first.wall_support;
+}
+
+}  // namespace
+
+PipelineResult run_pipeline(const volume::Volume& input, const Vec3f& seed_mm,
+                            const PipelineConfig& config, PipelineBuffers& buffers,
+                            const WarmStart* warm, std::stop_token stop) {
+  const auto start = Clock::now();
+  PipelineResult result;
+  std::vector<std::uint8_t> no_data;  // (set in §0)
+  auto judge = [&](PipelineResult& r, std::string error) {
+    r.ok = error.empty();
+    r.error = std::move(error);
+    internal::quality_verdict(input, buffers.smoothed, no_data, seed_mm, r);
+  };
+  auto finish = [&](std::string error) {
+    judge(result, std::move(error));
+    result.timings.total_ms = ms_since(start);
+    return std::move(result);
+  };
+  if (input.empty()) return finish("the volume is empty");
+  // The balloon's own precondition (it throws for a seed outside the volume); checked here so a
+  // tracked seed that drifted out becomes a failed volume, not an exception.
+  if (!seed_mm.allFinite() || !input.contains_mm(seed_mm))
+    return finish("the seed lies outside the volume");
+  smooth_stage(input, seed_mm, config, buffers, no_data, result);
   if (stop.stop_requested()) return finish("stopped");
+  const PipelineResult smoothed_only = result;
+  std::string error = segment_stages(input, seed_mm, config, buffers, warm, stop, result);
+  if (error != "stopped" && config.second_opinion_level_stop > 0.0f &&
+      !(config.balloon.level_stop_fraction > 0.0f)) {
+    judge(result, error);
+    if (!result.ok || !result.quality_ok) {
+      PipelineConfig level = config;
+      level.balloon.level_stop_fraction = config.second_opinion_level_stop;
+      PipelineResult other = smoothed_only;
+      std::string other_error =
+          segment_stages(input, seed_mm, level, buffers, nullptr, stop, other);
+      if (other_error != "stopped") judge(other, other_error);
+      result.second_opinion = other.second_opinion = true;
+      if (other_error != "stopped" && better(other, result)) {
+        result = std::move(other);
+        error = std::move(other_error);
+      }
+    }
+  }
+  if (!error.empty()) return finish(std::move(error));
   if (config.want_labels) labels_stage(input, result);
   return finish("");
 }

@@ -32,6 +32,8 @@ nlohmann::json report_json(const PipelineResult& result, const std::string& inpu
   report["quality_reasons"] = result.quality_reasons;
   if (result.wall_support >= 0.0f) report["wall_support"] = result.wall_support;
   report["start"] = result.warm_start ? "warm" : "cold";
+  report["stop_rule"] = result.stop_rule;
+  report["second_opinion"] = result.second_opinion;
   if (!result.start_reason.empty()) report["start_reason"] = result.start_reason;
   report["smoothing"] = {{"sigma_mm", result.smooth_sigma_mm},
                          {"speckle_grain_mm", result.speckle_grain_mm}};

@@ -218,6 +218,9 @@ std::vector<OptionSpec> pipeline_options() {
                   "second pass length", REF(pipeline.reinflate_pass.max_iterations)));
   o.push_back(flag("pipeline", "cell_from_voxel", "true: poisson.cell_mm = the finest spacing",
                    REF(pipeline.cell_from_voxel)));
+  o.push_back(num("pipeline", "second_opinion_level_stop", "", closed(0, 0.99),
+                  "level stop of the second try on a suspect result; 0: none",
+                  REF(pipeline.second_opinion_level_stop)));
   return o;
 }
 

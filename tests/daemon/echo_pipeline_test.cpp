@@ -21,9 +21,11 @@ sim::Phantom echo_phantom(const std::string& name, float contrast) {
   return sim::make_phantom(sim::with_echo_realism(spec));
 }
 
+// One stop rule alone, without the pipeline's second opinion.
 double pipeline_dice(const sim::Phantom& phantom, float region_fraction, int& genus,
                      float level_stop_fraction = 0.0f) {
   PipelineConfig config;
+  config.second_opinion_level_stop = 0.0f;
   config.balloon.region_fraction = region_fraction;
   config.balloon.level_stop_fraction = level_stop_fraction;
   const PipelineResult result = run_pipeline(phantom.image, phantom.seed_mm, config);
@@ -83,6 +85,7 @@ TEST(EchoPipeline, LevelStopFindsTheWallBehindSpeckleAtContrastHalf) {
 TEST(EchoPipeline, SurfaceStoppedOnSpeckleIsSuspect) {
   const sim::Phantom sphere = echo_phantom("sphere", 0.5f);
   PipelineConfig config;
+  config.second_opinion_level_stop = 0.0f;
   const PipelineResult off = run_pipeline(sphere.image, sphere.seed_mm, config);
   ASSERT_TRUE(off.ok) << off.error;
   EXPECT_LT(off.wall_support, 0.75f);
@@ -97,6 +100,25 @@ TEST(EchoPipeline, SurfaceStoppedOnSpeckleIsSuspect) {
   EXPECT_EQ(std::find(on.quality_reasons.begin(), on.quality_reasons.end(),
                       "surface not on the target's wall"),
             on.quality_reasons.end());
+}
+
+// The default pipeline takes the second opinion where the paper's stop alone was suspect (the
+// sphere above) and keeps the first result where it was ok (the simple simulator's sphere), at
+// no extra cost there.
+TEST(EchoPipeline, SecondOpinionReplacesASuspectResultOnly) {
+  const sim::Phantom echo = echo_phantom("sphere", 0.5f);
+  const PipelineResult r = run_pipeline(echo.image, echo.seed_mm, PipelineConfig{});
+  ASSERT_TRUE(r.ok && r.labels) << r.error;
+  EXPECT_TRUE(r.second_opinion);
+  EXPECT_EQ(r.stop_rule, "level");
+  EXPECT_EQ(r.topology.genus, 0);
+  EXPECT_GE(internal::dice(*r.labels, echo.truth), 0.9);
+  EXPECT_GE(r.wall_support, 0.9f);
+  const sim::Phantom simple = sim::make_phantom({.phantom = "sphere", .size_vox = 64});
+  const PipelineResult plain = run_pipeline(simple.image, simple.seed_mm, PipelineConfig{});
+  ASSERT_TRUE(plain.ok && plain.quality_ok) << plain.error;
+  EXPECT_FALSE(plain.second_opinion);
+  EXPECT_EQ(plain.stop_rule, "cost");
 }
 
 }  // namespace
