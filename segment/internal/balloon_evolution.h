@@ -72,6 +72,7 @@ class BalloonEvolution {
   bool needs_remesh() const;
   void remesh();
   void keep_before_leak(int iteration, int now_moving);
+  bool leaking(int now_moving) const;
 
   const volume::Volume& smoothed_;
   const ImageSampler& sampler_;
