@@ -105,7 +105,8 @@ Tally run_stream(const Args& a) {
                                                           config, buffers, warm ? &*warm : nullptr);
     warm.reset();
     if (a.warm_start && r.ok) {
-      warm = daemon::WarmStart{r.balloon, r.balloon_stop, 3.0f * a.spacing_mm, r.topology.genus};
+      warm = daemon::WarmStart{r.balloon, r.balloon_stop, 3.0f * a.spacing_mm, r.topology.genus,
+                               r.stop_rule == "level"};
       tracked_mm = r.deepest_interior_mm;
     }
     t.warm_count += r.warm_start;

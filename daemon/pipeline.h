@@ -164,6 +164,9 @@ struct WarmStart {
   // (the start's checks refuse a needle inserted or withdrawn before, so a warm start that
   // changes the genus is suspect). Unset: not checked.
   std::optional<int> genus;
+  // The previous result came from the level stop (the second opinion's rule): the warm balloon
+  // runs it too, and the second opinion, if needed, is then Ψ_cost's.
+  bool level_stop = false;
 };
 
 /// Same, the balloon starting from `warm` when it is given and safe on this volume

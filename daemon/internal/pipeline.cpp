@@ -246,6 +246,13 @@ std::string segment_stages(const volume::Volume& input, const Vec3f& seed_mm,
   return stop.stop_requested() ? "stopped" : "";
 }
 
+// `config` with the second opinion's level stop on, or as it is.
+PipelineConfig with_level_stop(const PipelineConfig& config, bool level) {
+  PipelineConfig c = config;
+  if (level) c.balloon.level_stop_fraction = config.second_opinion_level_stop;
+  return c;
+}
+
 // Whether `other` is the better of two results: a surface before none, an ok verdict before a
 // suspect one, and between two suspect ones the larger wall support (the verdict's own measure of
 // a surface on the target's wall rather than on speckle or in the tissue).
@@ -282,21 +289,26 @@ PipelineResult run_pipeline(const volume::Volume& input, const Vec3f& seed_mm,
   smooth_stage(input, seed_mm, config, buffers, no_data, result);
   if (stop.stop_requested()) return finish("stopped");
   const PipelineResult smoothed_only = result;
-  std::string error = segment_stages(input, seed_mm, config, buffers, warm, stop, result);
-  if (error != "stopped" && config.second_opinion_level_stop > 0.0f &&
-      !(config.balloon.level_stop_fraction > 0.0f)) {
+  // The first try runs the rule the warm start's result came from; the second opinion the other.
+  const bool switchable =
+      config.second_opinion_level_stop > 0.0f && !(config.balloon.level_stop_fraction > 0.0f);
+  const bool level_first = switchable && warm && warm->level_stop;
+  std::string error = segment_stages(input, seed_mm, with_level_stop(config, level_first), buffers,
+                                     warm, stop, result);
+  if (switchable && error != "stopped") {
     judge(result, error);
     if (!result.ok || !result.quality_ok) {
-      PipelineConfig level = config;
-      level.balloon.level_stop_fraction = config.second_opinion_level_stop;
       PipelineResult other = smoothed_only;
-      std::string other_error =
-          segment_stages(input, seed_mm, level, buffers, nullptr, stop, other);
-      if (other_error != "stopped") judge(other, other_error);
-      result.second_opinion = other.second_opinion = true;
-      if (other_error != "stopped" && better(other, result)) {
-        result = std::move(other);
-        error = std::move(other_error);
+      std::string other_error = segment_stages(
+          input, seed_mm, with_level_stop(config, !level_first), buffers, nullptr, stop, other);
+      result.second_opinion = true;
+      if (other_error != "stopped") {
+        judge(other, other_error);
+        other.second_opinion = true;
+        if (better(other, result)) {
+          result = std::move(other);
+          error = std::move(other_error);
+        }
       }
     }
   }

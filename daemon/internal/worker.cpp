@@ -32,6 +32,8 @@ void describe_result(const PipelineResult& result, nlohmann::json& line) {
   line["target"] = to_string(result.target);
   line["quality"] = result.quality_ok ? "ok" : "suspect";
   line["quality_reasons"] = result.quality_reasons;
+  line["stop_rule"] = result.stop_rule;
+  line["second_opinion"] = result.second_opinion;
 }
 
 }  // namespace
@@ -207,8 +209,9 @@ std::optional<WarmStart> Worker::take_warm_start(const volume::Volume& input,
   std::optional<WarmStart> warm;
   if (start.warm) {
     const float vox_mm = input.spacing_mm().minCoeff();
-    warm = WarmStart{std::move(previous_->balloon), std::move(previous_->balloon_stop),
-                     (3.0f + previous_->motion_vox) * vox_mm, previous_->genus};
+    warm =
+        WarmStart{std::move(previous_->balloon), std::move(previous_->balloon_stop),
+                  (3.0f + previous_->motion_vox) * vox_mm, previous_->genus, previous_->level_stop};
   }
   previous_.reset();
   return warm;
@@ -245,6 +248,7 @@ void Worker::keep_for_warm_start(const volume::Volume& input, PipelineResult& re
   next.origin_mm = input.origin_mm();
   next.quality_ok = result.quality_ok;
   next.genus = result.topology.genus;
+  next.level_stop = result.stop_rule == "level";
   if (last_centroid_mm_) {
     next.motion_vox =
         (next.centroid_mm - *last_centroid_mm_).norm() / input.spacing_mm().minCoeff();

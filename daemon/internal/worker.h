@@ -58,6 +58,7 @@ class Worker {
     Vec3f spacing_mm = Vec3f::Zero(), origin_mm = Vec3f::Zero();
     bool quality_ok = false;
     int genus = 0;               // of the result's surface
+    bool level_stop = false;     // the result's stop rule was the level stop
     float motion_vox = 0.0f;     // centroid motion from the result before
     float volume_change = 0.0f;  // |ΔV| / V from the result before
   };

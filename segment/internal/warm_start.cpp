@@ -30,20 +30,23 @@ std::vector<Vec3f> vertex_normals(const Mesh& m) {
 }  // namespace
 
 std::string check_start_safe(const BalloonMesh& start, const ImageSampler& sampler,
-                             const CostScale& scale, float wall_level, const StepKernel& box) {
-  int failed = 0, samples = 0;
+                             const CostScale& scale, float wall_level, const StepKernel& box,
+                             float grains) {
+  int failed = 0, outside = 0, samples = 0;
   Vec3f first = Vec3f::Zero();
   auto test = [&](const Vec3f& p) {
     ++samples;
-    if (!box.outside(p) && scale.map(sampler.value(p)) < wall_level) return;
+    const bool out = box.outside(p);
+    if (!out && scale.map(sampler.value(p)) < wall_level) return;
     if (failed++ == 0) first = p;
+    outside += out;
   };
   for (std::uint32_t v = 0; v < start.n_vertices(); ++v) test(start.point_mm(Vertex{v}));
   for (std::uint32_t e = 0; e < start.n_edges(); ++e) {
     const Halfedge h = BalloonMesh::halfedge(Edge{e}, 0);
     test(0.5f * (start.point_mm(start.from_vertex(h)) + start.point_mm(start.to_vertex(h))));
   }
-  if (failed == 0) return {};
+  if (outside == 0 && static_cast<float>(failed) <= grains * static_cast<float>(samples)) return {};
   char where[96];
   std::snprintf(where, sizeof where, "(%.1f, %.1f, %.1f) mm", first.x(), first.y(), first.z());
   return std::to_string(failed) + " of " + std::to_string(samples) +

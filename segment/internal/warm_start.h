@@ -13,10 +13,13 @@
 namespace sonomesh::segment::internal {
 
 /// The check on the new volume: every vertex and every edge midpoint of `start` lies in the
-/// step's box and below `wall_level` (the cost rule's "inside", in the cost's scale). Returns why
-/// not (how many samples failed, and where the first one is), empty if safe.
+/// step's box and below `wall_level` (the cost rule's "inside", in the cost's scale), all but
+/// `grains` of them (a share) for the level stop, which blood-pool speckle grains above the
+/// level do not stop. Returns why not (how many samples failed, and where the first one is),
+/// empty if safe.
 std::string check_start_safe(const BalloonMesh& start, const ImageSampler& sampler,
-                             const CostScale& scale, float wall_level, const StepKernel& box);
+                             const CostScale& scale, float wall_level, const StepKernel& box,
+                             float grains = 0.0f);
 
 /// The walls the previous balloon stopped at must still be there: a vertex of `previous` that
 /// the boundary cost stopped (`stop` Boundary) needs a sample at or above `wall_level` within

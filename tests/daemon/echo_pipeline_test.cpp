@@ -121,5 +121,24 @@ TEST(EchoPipeline, SecondOpinionReplacesASuspectResultOnly) {
   EXPECT_EQ(plain.stop_rule, "cost");
 }
 
+// A volume after one the level stop segmented (the second opinion) starts warm with the level
+// stop too, and needs no second opinion: one balloon, not three.
+TEST(EchoPipeline, WarmStartKeepsTheSecondOpinionsRule) {
+  const sim::Phantom echo = echo_phantom("sphere", 0.5f);
+  PipelineBuffers buffers;
+  const PipelineResult first = run_pipeline(echo.image, echo.seed_mm, PipelineConfig{}, buffers);
+  ASSERT_TRUE(first.ok && first.quality_ok) << first.error;
+  ASSERT_EQ(first.stop_rule, "level");
+  const WarmStart warm{first.balloon, first.balloon_stop, 1.5f, first.topology.genus, true};
+  const PipelineResult next =
+      run_pipeline(echo.image, echo.seed_mm, PipelineConfig{}, buffers, &warm);
+  ASSERT_TRUE(next.ok && next.labels) << next.error;
+  EXPECT_TRUE(next.warm_start) << next.start_reason;
+  EXPECT_EQ(next.stop_rule, "level");
+  EXPECT_FALSE(next.second_opinion);
+  EXPECT_TRUE(next.quality_ok);
+  EXPECT_GE(internal::dice(*next.labels, echo.truth), 0.9);
+}
+
 }  // namespace
 }  // namespace sonomesh::daemon

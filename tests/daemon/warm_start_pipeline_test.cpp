@@ -34,7 +34,7 @@ class Stream {
     seed_used_ = seed;
     std::optional<WarmStart> warm;
     if (previous_)
-      warm = WarmStart{previous_->balloon, previous_->balloon_stop, 3.0f * kSpacingMm, {}};
+      warm = WarmStart{previous_->balloon, previous_->balloon_stop, 3.0f * kSpacingMm, {}, false};
     PipelineResult r =
         run_pipeline(p.image, seed, PipelineConfig{}, buffers_, warm ? &*warm : nullptr);
     previous_.reset();
@@ -148,7 +148,7 @@ TEST(WarmStartPipeline, AJumpedTargetFallsBackToAColdStart) {
   const Vec3i shift(12, 6, 0);
   const volume::Volume image = shifted(p.image, shift), truth = shifted(p.truth, shift);
   const Vec3f seed_mm = p.image.index_to_mm((p.seed_index + shift).cast<float>());
-  const WarmStart warm{first.balloon, first.balloon_stop, 2.0f * 0.5f, {}};
+  const WarmStart warm{first.balloon, first.balloon_stop, 2.0f * 0.5f, {}, false};
   PipelineBuffers buffers;
   const PipelineResult r = run_pipeline(image, seed_mm, PipelineConfig{}, buffers, &warm);
   ASSERT_TRUE(r.ok) << r.error;
