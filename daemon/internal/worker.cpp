@@ -175,6 +175,7 @@ void Worker::process(QueuedVolume item) {
     deepest = SeedMm{d.x(), d.y(), d.z()};
   }
   seeds_.on_result(deepest, override_waiting());
+  flag_genus_change(*seed, result);
   describe_result(result, line);
   context_.stats.count_start(result.warm_start);
 
@@ -215,6 +216,18 @@ std::optional<WarmStart> Worker::take_warm_start(const volume::Volume& input,
   }
   previous_.reset();
   return warm;
+}
+
+// A tracked object whose genus changed since the last result is flagged "genus changed": a needle
+// went in or came out, or one of the two results has the wrong topology (an extra handle is ok to
+// the verdict otherwise, docs/results.md). Either way a reader should look. Another seed is
+// another object.
+void Worker::flag_genus_change(const SeedCandidate& seed, PipelineResult& result) {
+  if (seed.origin == SeedOrigin::Tracked && last_genus_ && *last_genus_ != result.topology.genus) {
+    result.quality_ok = false;
+    result.quality_reasons.emplace_back("genus changed");
+  }
+  last_genus_ = result.topology.genus;
 }
 
 // Cold unless the last result can start this one (seed_policy.h, decide_start).

@@ -47,6 +47,7 @@ class Worker {
   StartDecision choose_start(const volume::Volume& input, const SeedCandidate& seed) const;
   void keep_for_warm_start(const volume::Volume& input, PipelineResult& result);
   std::optional<WarmStart> take_warm_start(const volume::Volume& input, const StartDecision& start);
+  void flag_genus_change(const SeedCandidate& seed, PipelineResult& result);
 
   // What the next volume's warm start needs from the last result; empty after a failure.
   struct Previous {
@@ -74,7 +75,8 @@ class Worker {
   bool seed_overridden_ = false;           // the last pick_seed used an override
   std::optional<Vec3f> last_centroid_mm_;  // of the last result (its motion, for the next)
   double last_volume_ml_ = 0.0;
-  int since_refused_ = 1 << 30;  // volumes since the pipeline last refused a warm start
+  int since_refused_ = 1 << 30;    // volumes since the pipeline last refused a warm start
+  std::optional<int> last_genus_;  // of the last result with a surface
   std::function<void()> turn_hook_;
 
   std::mutex override_mutex_;  // the one-slot mailbox from the HTTP and signal threads

@@ -8,6 +8,7 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <chrono>
 #include <filesystem>
 #include <fstream>
@@ -389,6 +390,42 @@ TEST(DaemonRun, DirectoryReplayProcessesEveryVolume) {
   expect_contiguous(by_seq, 0, 2);
   EXPECT_EQ(count_status(by_seq, "processed"), 3) << daemon->stderr_text();
   for (const auto& [seq, line] : by_seq) EXPECT_EQ(line["genus"], 0) << line.dump();
+}
+
+// A tracked object whose genus changes (a needle-pierced cyst, then a cyst without it, on the same
+// grid) is flagged once, on the volume where it changed; before and after it is ok.
+TEST(DaemonRun, AGenusChangeOfTheTrackedObjectIsFlaggedOnce) {
+  const ScratchDir dir("genus_change");
+  fs::create_directories(dir / "volumes");
+  const char* phantoms[] = {"cyst-needle", "cyst-needle", "sphere", "sphere"};
+  for (int i = 0; i < 4; ++i) {
+    Child gen({PROBE_SIM_EXE, "generate", "--phantom", phantoms[i], "--size", "64", "--seed",
+               std::to_string(i + 1), "--out",
+               (dir / "volumes" / ("v" + std::to_string(i) + ".nrrd")).string(), "--truth",
+               (dir / ("t" + std::to_string(i) + ".nrrd")).string()},
+              dir / ("gen" + std::to_string(i)));
+    ASSERT_EQ(gen.wait(30000ms), 0) << gen.stderr_text();
+  }
+  // The first seed is the cyst-needle's own (the centre lies on its needle); then tracked.
+  const auto sidecar = nlohmann::json::parse(std::ifstream(dir / "volumes" / "v0.json"));
+  const auto& s = sidecar["seed_mm"];
+  const std::string seed_mm = std::to_string(s[0].get<double>()) + "," +
+                              std::to_string(s[1].get<double>()) + "," +
+                              std::to_string(s[2].get<double>());
+  auto daemon = start_daemon(dir, "replay:" + (dir / "volumes").string(), {"--seed-mm", seed_mm});
+  const auto code = daemon->wait(60000ms);
+  ASSERT_TRUE(code.has_value());
+  EXPECT_EQ(*code, 0) << daemon->stderr_text();
+  const auto by_seq = check_journal(dir / "out");
+  ASSERT_EQ(count_status(by_seq, "processed"), 4) << daemon->stderr_text();
+  const int genus[] = {1, 1, 0, 0};
+  for (const auto& [seq, line] : by_seq) {
+    EXPECT_EQ(line["genus"], genus[seq]) << line.dump();
+    const auto& reasons = line["quality_reasons"];
+    const bool flagged =
+        std::find(reasons.begin(), reasons.end(), "genus changed") != reasons.end();
+    EXPECT_EQ(flagged, seq == 2) << line.dump();
+  }
 }
 
 TEST(DaemonRun, PrintConfigAndArgumentErrors) {
