@@ -33,6 +33,13 @@ nlohmann::json report_json(const PipelineResult& result, const std::string& inpu
   if (result.wall_support >= 0.0f) report["wall_support"] = result.wall_support;
   report["start"] = result.warm_start ? "warm" : "cold";
   if (!result.start_reason.empty()) report["start_reason"] = result.start_reason;
+  if (const PipelineResult::CoarseStart& c = result.coarse_start; c.used)
+    report["coarse_start"] = {{"downsample_ms", c.downsample_ms},
+                              {"coarse_ms", c.coarse_ms},
+                              {"fine_ms", c.fine_ms},
+                              {"coarse_iterations", c.coarse_iterations}};
+  else if (!c.fallback_reason.empty())
+    report["coarse_start"] = {{"fallback_reason", c.fallback_reason}};
   report["smoothing"] = {{"sigma_mm", result.smooth_sigma_mm},
                          {"speckle_grain_mm", result.speckle_grain_mm}};
   const StageTimings& t = result.timings;

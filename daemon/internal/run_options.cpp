@@ -218,6 +218,16 @@ std::vector<OptionSpec> pipeline_options() {
                   "second pass length", REF(pipeline.reinflate_pass.max_iterations)));
   o.push_back(flag("pipeline", "cell_from_voxel", "true: poisson.cell_mm = the finest spacing",
                    REF(pipeline.cell_from_voxel)));
+  o.push_back(flag("pipeline", "coarse_start",
+                   "cold start on the volume halved, then to the wall at full resolution",
+                   REF(pipeline.coarse_start)));
+  o.push_back(num("pipeline", "coarse_start_inset_vox", "vox", closed(2, 20),
+                  "how far inside the coarse balloon the full-resolution pass starts",
+                  REF(pipeline.coarse_start_inset_vox)));
+  o.push_back(num("pipeline", "coarse_start_min_vox", "vox", closed(8, 4096),
+                  "least voxels per axis of a coarse grid", REF(pipeline.coarse_start_min_vox)));
+  o.push_back(num("pipeline", "coarse_start_max_levels", "levels", closed(1, 4),
+                  "halvings of the volume at most", REF(pipeline.coarse_start_max_levels)));
   return o;
 }
 
