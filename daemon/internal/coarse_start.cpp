@@ -95,10 +95,9 @@ std::string from_level(const volume::Volume& smoothed, const std::vector<volume:
   t = Clock::now();
   for (int level = top - 1; level >= 0; --level) {
     const float inset_mm = options.inset_vox * grid(level).spacing_mm().minCoeff();
-    const float replay_vox = options.replay_vox;
     segment::BalloonResult finer = segment::inflate_balloon_from(
         grid(level), balloon.mesh, seed_mm, passes,
-        {.inset_mm = inset_mm, .start_stop = balloon.stop, .replay_vox = replay_vox}, stop);
+        {.inset_mm = inset_mm, .start_stop = balloon.stop, .replay_vox = options.replay_vox}, stop);
     report.fine_ms += ms_since(t);
     t = Clock::now();
     if (finer.start_unsafe) return "level " + std::to_string(level) + " " + finer.error;
@@ -128,9 +127,8 @@ segment::BalloonResult coarse_to_fine_balloon(const volume::Volume& smoothed,
   segment::BalloonOptions passes = options;
   passes.stall_window_iterations =
       std::min(options.stall_window_iterations, coarse_options.stall_window_iterations);
-  // From the coarsest level down; a failed attempt (a wall the coarse grid blurred away, a
-  // leak) gives the next finer level its chance, and the full resolution's plain cold start
-  // comes last, so the result is never worse than the plain cold start's.
+  // From the coarsest level down: a failed attempt (a wall the coarse grid blurred away, a
+  // leak) gives the next finer level its chance, the plain cold start comes last.
   segment::BalloonResult balloon;
   std::string why;
   for (int top = levels; top >= 1; --top) {

@@ -28,9 +28,9 @@ struct CoarseStartOptions {
 
 /// What the coarse-to-fine start did, for the report and the benchmarks.
 struct CoarseStartReport {
-  bool used = false;   // the result came from the coarse pass and the fine pass after it
+  bool used = false;   // the result came from a coarse pass and the finer passes after it
   std::string reason;  // why not, when it was tried and the plain cold start ran instead
-  double downsample_ms = 0.0, coarse_ms = 0.0, fine_ms = 0.0;
+  double downsample_ms = 0.0, coarse_ms = 0.0, fine_ms = 0.0;  // fine: every finer pass
   int coarse_iterations = 0;
   int levels = 0;  // halvings of the coarsest grid
 };
@@ -41,14 +41,16 @@ struct CoarseStartReport {
 /// `min_vox` voxels or `smoothed` is not Float32.
 bool downsample_by_two(const volume::Volume& smoothed, int min_vox, volume::Volume& coarse);
 
-/// The cold start, coarse to fine: segment::inflate_balloon on `coarse` (the options are in
-/// voxels, so every step covers twice the distance and the mesh has a quarter of the vertices),
-/// then segment::inflate_balloon_from on `smoothed` from that balloon eroded by the inset, its
-/// walls checked against the coarse stops. A coarse pass that is refused, leaks or gives an
-/// unsafe start, and a fine pass that leaks, fall back to segment::inflate_balloon on `smoothed`
-/// (report.reason says why), so the result is never worse than the plain cold start's. The
-/// fine pass's A_t starts empty and its start has the seams where the coarse fronts met opened,
-/// so the fronts meet again at full resolution and mark the tunnels there.
+/// The cold start, coarse to fine: `smoothed` halved while every axis keeps min_coarse_vox
+/// voxels (max_levels times at most, into `pyramid`, reused), segment::inflate_balloon on the
+/// coarsest grid (the options are in voxels, so every step covers twice the distance and the
+/// mesh has a quarter of the vertices), then segment::inflate_balloon_from on each finer grid
+/// from the coarser balloon eroded by the inset, its walls checked against the coarser stops.
+/// Each finer pass's A_t starts empty and its start has the seams where the coarser fronts met
+/// opened, so the fronts meet again on the finer grid and mark the tunnels there. An attempt
+/// that is refused, leaks or gives an unsafe start is retried from the next finer grid, and the
+/// plain segment::inflate_balloon on `smoothed` comes last (report.reason says why), so a volume
+/// the coarse grids cannot segment costs only the failed attempts.
 segment::BalloonResult coarse_to_fine_balloon(const volume::Volume& smoothed,
                                               std::vector<volume::Volume>& pyramid,
                                               const volume::Vec3f& seed_mm,

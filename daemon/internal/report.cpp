@@ -37,7 +37,8 @@ nlohmann::json report_json(const PipelineResult& result, const std::string& inpu
     report["coarse_start"] = {{"downsample_ms", c.downsample_ms},
                               {"coarse_ms", c.coarse_ms},
                               {"fine_ms", c.fine_ms},
-                              {"coarse_iterations", c.coarse_iterations}};
+                              {"coarse_iterations", c.coarse_iterations},
+                              {"levels", c.levels}};
   else if (!c.fallback_reason.empty())
     report["coarse_start"] = {{"fallback_reason", c.fallback_reason}};
   report["smoothing"] = {{"sigma_mm", result.smooth_sigma_mm},

@@ -34,6 +34,12 @@ void agrees_with_plain_cold_start(const std::string& phantom) {
   EXPECT_EQ(coarse.topology.genus, plain.topology.genus);
   EXPECT_EQ(coarse.topology.genus, p.genus);
   EXPECT_GE(between, 0.97);
+  // The report says the start was coarse to fine, with its parts' times.
+  const nlohmann::json report = report_json(coarse, phantom, p.image, p.seed_mm);
+  EXPECT_EQ(report.at("start"), "cold");
+  EXPECT_GT(report.at("coarse_start").at("coarse_ms").get<double>(), 0.0);
+  EXPECT_GT(report.at("coarse_start").at("fine_ms").get<double>(), 0.0);
+  EXPECT_EQ(report.at("coarse_start").at("levels").get<int>(), 1);
 }
 
 TEST(CoarseStartPipeline, AgreesWithThePlainColdStartOnATorus) {
