@@ -1,7 +1,7 @@
 // process_bench: per-stage time of the pipeline (daemon::run_pipeline, what `sonomeshd process`
 // and every daemon job run) on simulator phantoms of 128³ and 256³.
 //   process_bench [--sizes 128,256] [--phantoms cyst-needle,torus] [--repeat 5] [--format md|json]
-//                 [--fresh-buffers] [--no-labels]
+//                 [--fresh-buffers] [--no-labels] [--no-coarse-start]
 //   process_bench --hash [--sizes 96,128] [--phantoms ...] [--threads 1,2]
 // --hash prints, per case, a 64-bit FNV-1a hash of the balloon (positions and stop reasons) and of
 // the final mesh (positions and triangles) instead of timings: a refactoring must keep them.
@@ -9,7 +9,9 @@
 // The runs reuse one PipelineBuffers, as the daemon's worker does; --fresh-buffers allocates the
 // smoothed volume anew per run, as a single `sonomeshd process` does. --no-labels skips the label
 // volume (the daemon without an OpenIGTLink listener, `process` without --labels): `labels` is
-// then the deepest-point search alone.
+// then the deepest-point search alone. --no-coarse-start runs the plain cold start (the sphere at
+// full resolution) instead of the coarse-to-fine one; the `c2f` column is the coarse-to-fine
+// start's downsampling + coarse pass + fine pass (ms, medians), "-" when it was not used.
 // Targets (DESIGN/issue 4): total <= 100 ms at 128³, <= 750 ms at 256³.
 #include <CLI/CLI.hpp>
 #include <algorithm>
@@ -40,7 +42,7 @@ struct Fnv1a {
 };
 
 int print_hashes(const std::vector<int>& sizes, const std::vector<std::string>& phantoms,
-                 const std::vector<int>& threads) {
+                 const std::vector<int>& threads, bool coarse_start) {
   std::printf("%-12s %5s %7s %-18s %-18s %s\n", "phantom", "size", "threads", "balloon", "mesh",
               "genus");
   for (const int size : sizes)
@@ -50,6 +52,7 @@ int print_hashes(const std::vector<int>& sizes, const std::vector<std::string>& 
         daemon::PipelineConfig config;
         config.balloon.threads = t;
         config.poisson.fft_threads = t;
+        config.coarse_start = coarse_start;
         const daemon::PipelineResult r =
             daemon::run_pipeline(phantom.image, phantom.seed_mm, config);
         Fnv1a balloon, mesh;
@@ -75,10 +78,11 @@ double median(std::vector<double> values) {
 
 // One phantom at one size: `repeat` timed runs after a warm-up, their medians printed as a row.
 void bench_case(const std::string& name, int size, int repeat, bool fresh_buffers, bool want_labels,
-                const std::string& format) {
+                bool coarse_start, const std::string& format) {
   const sim::Phantom phantom = sim::make_phantom({.phantom = name, .size_vox = size});
   daemon::PipelineConfig config;
   config.want_labels = want_labels;
+  config.coarse_start = coarse_start;
   daemon::PipelineBuffers buffers;
   auto run = [&] {
     if (fresh_buffers) buffers = daemon::PipelineBuffers{};
@@ -86,9 +90,13 @@ void bench_case(const std::string& name, int size, int repeat, bool fresh_buffer
   };
   daemon::PipelineResult result = run();
   std::vector<double> smooth, balloon, opening, reconstruct, mesh, reinflate, labels, total;
+  std::vector<double> downsample, coarse, fine;
   for (int r = 0; r < repeat; ++r) {
     result = run();
     const daemon::StageTimings& t = result.timings;
+    downsample.push_back(result.coarse_start.downsample_ms);
+    coarse.push_back(result.coarse_start.coarse_ms);
+    fine.push_back(result.coarse_start.fine_ms);
     smooth.push_back(t.smooth_ms);
     balloon.push_back(t.balloon_ms);
     opening.push_back(t.opening_ms);
@@ -102,6 +110,10 @@ void bench_case(const std::string& name, int size, int repeat, bool fresh_buffer
   const std::string grid = std::to_string(result.grid_dims.x()) + "x" +
                            std::to_string(result.grid_dims.y()) + "x" +
                            std::to_string(result.grid_dims.z());
+  char c2f[64] = "-";
+  if (result.coarse_start.used)
+    std::snprintf(c2f, sizeof c2f, "%.1f+%.1f+%.1f", median(downsample), median(coarse),
+                  median(fine));
   if (format == "json") {
     nlohmann::json row = {{"phantom", name},
                           {"size", size},
@@ -116,16 +128,20 @@ void bench_case(const std::string& name, int size, int repeat, bool fresh_buffer
                           {"total_ms", median(total)},
                           {"target_ms", target_ms},
                           {"iterations", result.balloon_iterations},
-                          {"grid", grid}};
+                          {"grid", grid},
+                          {"coarse_start", result.coarse_start.used},
+                          {"downsample_ms", median(downsample)},
+                          {"coarse_ms", median(coarse)},
+                          {"fine_ms", median(fine)}};
     std::printf("%s\n", row.dump().c_str());
   } else {
     std::printf(
         "| %s%s | %d³ | %.1f | %.1f | %.1f | %.1f | %.1f | %.1f | %.1f | %.1f | %s %.0f | %d "
-        "| %s |\n",
+        "| %s | %s |\n",
         name.c_str(), result.ok ? "" : " (failed)", size, median(smooth), median(balloon),
         median(opening), median(reconstruct), median(mesh), median(reinflate), median(labels),
         median(total), median(total) <= target_ms ? "≤" : "> (missed)", target_ms,
-        result.balloon_iterations, grid.c_str());
+        result.balloon_iterations, grid.c_str(), c2f);
   }
 }
 
@@ -135,7 +151,7 @@ int main(int argc, char** argv) {
   std::vector<std::string> phantoms{"sphere", "cyst-needle"};
   int repeat = 5;
   std::string format = "md";
-  bool fresh_buffers = false, hash = false, no_labels = false;
+  bool fresh_buffers = false, hash = false, no_labels = false, no_coarse_start = false;
   std::vector<int> threads{1, 2};
   app.add_option("--sizes", sizes, "Volume edges (voxels)")->delimiter(',');
   app.add_option("--phantoms", phantoms, "Phantom names")->delimiter(',');
@@ -143,6 +159,7 @@ int main(int argc, char** argv) {
   app.add_option("--format", format, "md or json")->check(CLI::IsMember({"md", "json"}));
   app.add_flag("--fresh-buffers", fresh_buffers, "Allocate the smoothing buffers per run");
   app.add_flag("--no-labels", no_labels, "Skip the label volume (the deepest point only)");
+  app.add_flag("--no-coarse-start", no_coarse_start, "The plain cold start at full resolution");
   app.add_flag("--hash", hash, "Print balloon and mesh hashes instead of timings");
   app.add_option("--threads", threads, "Thread counts for --hash")->delimiter(',');
   try {
@@ -155,7 +172,7 @@ int main(int argc, char** argv) {
   }
   if (hash) {
     try {
-      return print_hashes(sizes, phantoms, threads);
+      return print_hashes(sizes, phantoms, threads, !no_coarse_start);
     } catch (const std::exception& e) {
       std::fprintf(stderr, "process_bench: %s\n", e.what());
       return 1;
@@ -164,13 +181,13 @@ int main(int argc, char** argv) {
   if (format == "md") {
     std::printf(
         "| phantom | size | smooth | balloon | opening | reconstruct | mesh | reinflate | labels "
-        "| total (ms) | target | balloon iterations | grid |\n");
-    std::printf("|---|---|---|---|---|---|---|---|---|---|---|---|---|\n");
+        "| total (ms) | target | balloon iterations | grid | c2f |\n");
+    std::printf("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n");
   }
   try {
     for (const int size : sizes)
       for (const std::string& name : phantoms) {
-        bench_case(name, size, repeat, fresh_buffers, !no_labels, format);
+        bench_case(name, size, repeat, fresh_buffers, !no_labels, !no_coarse_start, format);
         std::fflush(stdout);
       }
   } catch (const std::exception& e) {

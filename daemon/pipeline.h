@@ -52,6 +52,14 @@ struct PipelineConfig {
   /// the verdict calls ok, else the one with the larger wall support. 0 = off; not tried when
   /// balloon.level_stop_fraction is already set.
   float second_opinion_level_stop = 0.5f;
+  /// The cold start coarse to fine (issue 17): the balloon inflates on the smoothed volume
+  /// averaged over 2×2×2 blocks, then a short warm start at full resolution takes it from there
+  /// to the wall; it falls back to the plain cold start when the coarse pass fails. false: the
+  /// plain cold start from the small sphere at full resolution.
+  bool coarse_start = true;
+  float coarse_start_inset_vox = 2.0f;  // the fine pass's inset, full-resolution voxels
+  int coarse_start_min_vox = 48;        // least coarse voxels per axis (96³ inputs and up)
+  int coarse_start_max_levels = 2;      // halvings at most (256³: 128³ and 64³)
   bool want_labels = true;      // label volume on the input grid (inside = 1); seed tracking
                                 // does not need it (deepest_interior_mm comes from χ)
   bool want_indicator = false;  // the indicator function χ as a Float32 volume (for .vdb output)
@@ -123,6 +131,15 @@ struct PipelineResult {
   /// level stop, as configured or as the second opinion); and whether the second opinion ran.
   std::string stop_rule = "cost";
   bool second_opinion = false;
+  /// A cold start that ran coarse to fine (PipelineConfig::coarse_start), the parts' times (all
+  /// within timings.balloon_ms), and why the plain cold start ran instead when it was tried.
+  struct CoarseStart {
+    bool used = false;
+    std::string fallback_reason;
+    double downsample_ms = 0.0, coarse_ms = 0.0, fine_ms = 0.0;
+    int coarse_iterations = 0;
+    int levels = 0;  // halvings of the coarsest grid
+  } coarse_start;
 
   StageTimings timings;
   std::optional<volume::Volume> labels;     // UInt8 on the input grid, inside = 1
@@ -146,6 +163,7 @@ PipelineResult run_pipeline(const volume::Volume& input, const Vec3f& seed_mm,
 /// of the smoothed volume where it samples.)
 struct PipelineBuffers {
   volume::Volume smoothed;
+  std::vector<volume::Volume> pyramid;  // the coarse start's grids, an eighth of the one below
 };
 
 /// Same, smoothing into `buffers` (reused when the next volume has the same dimensions).

@@ -166,6 +166,11 @@ struct WarmStartOptions {
   // The start mesh's stop reasons (the previous balloon's): each wall it stopped at must still
   // be within inset_mm (more than 10 % gone: not safe). Empty: not checked.
   std::span<const StopReason> start_stop;
+  // Each start vertex begins with the Ψ_cost and the darkest level of a path along its normal
+  // from up to this far behind it (short of a wall behind), as if it had inflated from there,
+  // so it stops where a cold start's vertex stops. 0: its cost is its net climb from the seed's
+  // level alone (a warm start from the previous volume).
+  float replay_vox = 0.0f;
 };
 
 /// The warm start (issue 17): the balloon starts inside `start_mesh` (the previous volume's

@@ -6,6 +6,7 @@
 #include <chrono>
 #include <vector>
 
+#include "daemon/internal/coarse_start.h"
 #include "daemon/internal/metrics.h"
 #include "daemon/internal/target_image.h"
 
@@ -106,9 +107,32 @@ void smooth_stage(const volume::Volume& input, const Vec3f& seed_mm, const Pipel
   result.timings.smooth_ms = ms_since(t);
 }
 
+// The cold start: coarse to fine when configured (coarse_start.h), else from the small sphere.
+segment::BalloonResult cold_balloon(PipelineBuffers& buffers, const Vec3f& seed_mm,
+                                    const PipelineConfig& config, const std::stop_token& stop,
+                                    PipelineResult& result) {
+  if (!config.coarse_start)
+    return segment::inflate_balloon(buffers.smoothed, seed_mm, config.balloon, stop);
+  internal::CoarseStartReport report;
+  segment::BalloonResult balloon =
+      internal::coarse_to_fine_balloon(buffers.smoothed, buffers.pyramid, seed_mm, config.balloon,
+                                       {.inset_vox = config.coarse_start_inset_vox,
+                                        .min_coarse_vox = config.coarse_start_min_vox,
+                                        .max_levels = config.coarse_start_max_levels},
+                                       stop, report);
+  result.coarse_start = {.used = report.used,
+                         .fallback_reason = report.reason,
+                         .downsample_ms = report.downsample_ms,
+                         .coarse_ms = report.coarse_ms,
+                         .fine_ms = report.fine_ms,
+                         .coarse_iterations = report.coarse_iterations,
+                         .levels = report.levels};
+  return balloon;
+}
+
 // §1-3: the balloon, from the warm start's mesh when one is given and safe on this volume, else
 // from the small sphere at the seed (the fallback says why in start_reason).
-segment::BalloonResult balloon_stage(const PipelineBuffers& buffers, const Vec3f& seed_mm,
+segment::BalloonResult balloon_stage(PipelineBuffers& buffers, const Vec3f& seed_mm,
                                      const PipelineConfig& config, const WarmStart* warm,
                                      const std::stop_token& stop, PipelineResult& result) {
   const auto t = Clock::now();
@@ -123,8 +147,7 @@ segment::BalloonResult balloon_stage(const PipelineBuffers& buffers, const Vec3f
     // its start balloon) is not the target's: the cold start gets its chance.
     if (balloon.stats.leaked) result.start_reason = "warm start leaked: " + balloon.error;
   }
-  if (!warm || !result.warm_start)
-    balloon = segment::inflate_balloon(buffers.smoothed, seed_mm, config.balloon, stop);
+  if (!warm || !result.warm_start) balloon = cold_balloon(buffers, seed_mm, config, stop, result);
   result.timings.balloon_ms = ms_since(t);
   result.balloon = std::move(balloon.mesh);
   result.balloon_stop = std::move(balloon.stop);
@@ -215,7 +238,7 @@ void labels_stage(const volume::Volume& input, PipelineResult& result) {
 // §1-5 and the second pass, after the smoothing: the balloon (warm, or cold), the surface, the
 // reinflation. Returns the error, empty if there is a surface.
 std::string segment_stages(const volume::Volume& input, const Vec3f& seed_mm,
-                           const PipelineConfig& config, const PipelineBuffers& buffers,
+                           const PipelineConfig& config, PipelineBuffers& buffers,
                            const WarmStart* warm, const std::stop_token& stop,
                            PipelineResult& result) {
   result.stop_rule = config.balloon.level_stop_fraction > 0.0f ? "level" : "cost";

@@ -35,6 +35,14 @@ nlohmann::json report_json(const PipelineResult& result, const std::string& inpu
   report["stop_rule"] = result.stop_rule;
   report["second_opinion"] = result.second_opinion;
   if (!result.start_reason.empty()) report["start_reason"] = result.start_reason;
+  if (const PipelineResult::CoarseStart& c = result.coarse_start; c.used)
+    report["coarse_start"] = {{"downsample_ms", c.downsample_ms},
+                              {"coarse_ms", c.coarse_ms},
+                              {"fine_ms", c.fine_ms},
+                              {"coarse_iterations", c.coarse_iterations},
+                              {"levels", c.levels}};
+  else if (!c.fallback_reason.empty())
+    report["coarse_start"] = {{"fallback_reason", c.fallback_reason}};
   report["smoothing"] = {{"sigma_mm", result.smooth_sigma_mm},
                          {"speckle_grain_mm", result.speckle_grain_mm}};
   const StageTimings& t = result.timings;

@@ -221,6 +221,16 @@ std::vector<OptionSpec> pipeline_options() {
   o.push_back(num("pipeline", "second_opinion_level_stop", "", closed(0, 0.99),
                   "level stop of the second try on a suspect result; 0: none",
                   REF(pipeline.second_opinion_level_stop)));
+  o.push_back(flag("pipeline", "coarse_start",
+                   "cold start on the volume halved, then to the wall at full resolution",
+                   REF(pipeline.coarse_start)));
+  o.push_back(num("pipeline", "coarse_start_inset_vox", "vox", closed(2, 20),
+                  "how far inside the coarse balloon the full-resolution pass starts",
+                  REF(pipeline.coarse_start_inset_vox)));
+  o.push_back(num("pipeline", "coarse_start_min_vox", "vox", closed(8, 4096),
+                  "least voxels per axis of a coarse grid", REF(pipeline.coarse_start_min_vox)));
+  o.push_back(num("pipeline", "coarse_start_max_levels", "levels", closed(1, 4),
+                  "halvings of the volume at most", REF(pipeline.coarse_start_max_levels)));
   return o;
 }
 

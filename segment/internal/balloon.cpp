@@ -202,6 +202,16 @@ BalloonResult inflate_balloon_from(const volume::Volume& smoothed_in, const Mesh
       !why.empty())
     return unsafe(why);
   init_start_states(start, pre.sampler, pre.scale, pre.seed.level);
+  // The replay samples a voxel apart: the smoothed image varies over a voxel or more (finer
+  // steps gave the same results). Its cost part covers two of the cost's leak windows.
+  if (warm.replay_vox > 0.0f)
+    replay_start_states(
+        start, pre.sampler, pre.cost,
+        {.floor_mm = warm.replay_vox * pre.vox_mm,
+         .cost_mm = std::min(warm.replay_vox, 2.0f * options.cost_window_vox) * pre.vox_mm,
+         .step_mm = pre.vox_mm,
+         .wall_level = wall_level},
+        box, options.threads);
   stats.start_mesh_ms = ms_since(t_start);
   BalloonEvolution evolution(pre.smoothed, pre.sampler, options, pre.cost, pre.snap,
                              std::move(start), stats);

@@ -20,6 +20,8 @@
 #include <utility>
 #include <vector>
 
+#include "mesh/parallel.h"
+
 namespace sonomesh::segment::internal {
 namespace {
 
@@ -170,14 +172,22 @@ std::vector<float> squared_depth(const std::vector<std::uint8_t>& inside, const 
   std::vector<float> d2(inside.size());
   for (std::size_t c = 0; c < inside.size(); ++c) d2[c] = inside[c] ? kFar : 0.0f;
   const int nx = box.dims.x(), ny = box.dims.y(), nz = box.dims.z();
-  LineScratch s(std::max({nx, ny, nz}));
+  const int longest = std::max({nx, ny, nz});
   const std::ptrdiff_t sy = nx, sz = static_cast<std::ptrdiff_t>(nx) * ny;
-  for (int k = 0; k < nz; ++k)
-    for (int j = 0; j < ny; ++j) distance_line(&d2[box.index(0, j, k)], nx, 1, s);
-  for (int k = 0; k < nz; ++k)
-    for (int i = 0; i < nx; ++i) distance_line(&d2[box.index(i, 0, k)], ny, sy, s);
-  for (int j = 0; j < ny; ++j)
-    for (int i = 0; i < nx; ++i) distance_line(&d2[box.index(i, j, 0)], nz, sz, s);
+  // Each pass's lines are independent: slabs of them on both cores (the same result).
+  const int threads = mesh::default_threads();
+  mesh::parallel_chunks(0, nz, threads, [&](int k0, int k1, int) {
+    LineScratch s(longest);
+    for (int k = k0; k < k1; ++k)
+      for (int j = 0; j < ny; ++j) distance_line(&d2[box.index(0, j, k)], nx, 1, s);
+    for (int k = k0; k < k1; ++k)
+      for (int i = 0; i < nx; ++i) distance_line(&d2[box.index(i, 0, k)], ny, sy, s);
+  });
+  mesh::parallel_chunks(0, ny, threads, [&](int j0, int j1, int) {
+    LineScratch s(longest);
+    for (int j = j0; j < j1; ++j)
+      for (int i = 0; i < nx; ++i) distance_line(&d2[box.index(i, j, 0)], nz, sz, s);
+  });
   return d2;
 }
 

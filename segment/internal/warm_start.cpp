@@ -9,6 +9,8 @@
 #include <limits>
 #include <vector>
 
+#include "mesh/parallel.h"
+
 namespace sonomesh::segment::internal {
 namespace {
 
@@ -98,6 +100,69 @@ void init_start_states(BalloonMesh& start, const ImageSampler& sampler, const Co
     s.floor_level = std::min(level, seed);
     s.anchor_mm = start.point_mm(Vertex{v});
   }
+}
+
+namespace {
+
+// Area-weighted vertex normals of a BalloonMesh (outward; zero where the faces cancel).
+std::vector<Vec3f> start_normals(const BalloonMesh& start) {
+  std::vector<Vec3f> normal(start.n_vertices(), Vec3f::Zero());
+  for (std::uint32_t f = 0; f < start.n_faces(); ++f) {
+    if (start.is_deleted(Face{f})) continue;
+    const Halfedge h = start.halfedge(Face{f});
+    const Vertex a = start.to_vertex(h), b = start.to_vertex(start.next(h)),
+                 c = start.to_vertex(start.next(start.next(h)));
+    const Vec3f pa = start.point_mm(a);
+    const Vec3f face = (start.point_mm(b) - pa).cross(start.point_mm(c) - pa);
+    normal[a.idx] += face;
+    normal[b.idx] += face;
+    normal[c.idx] += face;
+  }
+  for (Vec3f& n : normal) {
+    const float len = n.norm();
+    n = len > 0.0f ? Vec3f(n / len) : Vec3f::Zero();
+  }
+  return normal;
+}
+
+}  // namespace
+
+void replay_start_states(BalloonMesh& start, const ImageSampler& sampler, const CostRule& cost,
+                         const ReplayPath& path, const StepKernel& box, int threads) {
+  const std::vector<Vec3f> normal = start_normals(start);
+  const int floor_steps = static_cast<int>(path.floor_mm / path.step_mm);
+  const int cost_steps = static_cast<int>(path.cost_mm / path.step_mm);
+  mesh::Workers workers(threads);
+  workers.parallel_for(start.n_vertices(), 256, [&](std::size_t b, std::size_t e) {
+    for (std::size_t v = b; v < e; ++v) {
+      const Vertex vertex{static_cast<std::uint32_t>(v)};
+      if (start.is_deleted(vertex) || normal[v].isZero()) continue;
+      const Vec3f p = start.point_mm(vertex);
+      const Vec3f step = path.step_mm * normal[v];
+      VertexState& s = start.state(vertex);
+      // Back along -n, the darkest level on the way, until a wall behind (a thin part's other
+      // side) or the volume's edge.
+      int back = 0;
+      float floor_level = s.floor_level;
+      while (back < floor_steps) {
+        const Vec3f q = p - static_cast<float>(back + 1) * step;
+        if (box.outside(q)) break;
+        const float level = cost.scale.map(sampler.value(q));
+        if (level >= path.wall_level) break;
+        floor_level = std::min(floor_level, level);
+        ++back;
+      }
+      // Then forward again over the cost's reach, Ψ_cost as the evolution sums it.
+      float c = 0.0f, path_mm = 0.0f;
+      bool stopped = false;
+      for (int k = std::min(back, cost_steps); k > 0; --k)
+        cost.advance(sampler, p - static_cast<float>(k) * step, step, c, floor_level, path_mm,
+                     stopped);
+      // (Capped at τ_cost: a replay that would have stopped leaves the vertex to its first rise.)
+      s.cost = std::max(s.cost, std::min(c, cost.tau));
+      s.floor_level = std::min(s.floor_level, floor_level);
+    }
+  });
 }
 
 }  // namespace sonomesh::segment::internal

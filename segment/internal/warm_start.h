@@ -9,6 +9,7 @@
 #include "segment/internal/balloon_mesh.h"
 #include "segment/internal/image_sampler.h"
 #include "segment/internal/step.h"
+#include "segment/internal/stop_rules.h"
 
 namespace sonomesh::segment::internal {
 
@@ -34,5 +35,21 @@ std::string check_walls_kept(const Mesh& previous, std::span<const StopReason> s
 /// reinflate's vertices do), so a start part-way up a slope does not get the climb for free.
 void init_start_states(BalloonMesh& start, const ImageSampler& sampler, const CostScale& scale,
                        float seed_level);
+
+/// The path a start vertex is taken to have come along (replay_start_states).
+struct ReplayPath {
+  float floor_mm = 0.0f;  // how far back its darkest level is looked for
+  float cost_mm = 0.0f;   // how far back its Ψ_cost is summed (the cost's leak forgets the rest)
+  float step_mm = 0.0f;
+  float wall_level = 0.0f;  // a sample at or above it behind the vertex ends the path there
+};
+
+/// Each vertex of `start` gets the Ψ_cost and darkest level of a vertex that inflated along its
+/// normal from `path` behind it to where it stands (after init_start_states: the larger cost,
+/// the darker floor), so a start near the wall stops where a cold start's vertices stop: without
+/// the speckle's share of Ψ_cost and the darkest speckle of a long path under the climb backstop,
+/// the warm vertices ran on past them. Ψ_cost is capped at τ_cost.
+void replay_start_states(BalloonMesh& start, const ImageSampler& sampler, const CostRule& cost,
+                         const ReplayPath& path, const StepKernel& box, int threads);
 
 }  // namespace sonomesh::segment::internal
