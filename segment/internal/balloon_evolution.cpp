@@ -354,9 +354,9 @@ void BalloonEvolution::remesh() {
 }
 
 // Called after a remeshing pass, when bm_ holds the current balloon, once it has twice the start's
-// vertices. A copy is made only when the
-// moving vertices fell by a tenth or the mesh grew by a tenth since the last one, so a balloon
-// closing in on its walls copies itself a few times, not at every pass.
+// vertices. A copy is made only when the moving vertices fell by a tenth or the mesh grew by a
+// tenth since the last one, so a balloon closing in on its walls copies itself a few times, not
+// at every pass.
 void BalloonEvolution::keep_before_leak(int iteration, int now_moving) {
   if (bm_.n_vertices() < 2 * start_vertices_) return;  // S^0's first passes shed vertices
   peak_moving_ = std::max(peak_moving_, now_moving);
