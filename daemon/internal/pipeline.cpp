@@ -318,7 +318,10 @@ PipelineResult run_pipeline(const volume::Volume& input, const Vec3f& seed_mm,
   const bool level_first = switchable && warm && warm->level_stop;
   std::string error = segment_stages(input, seed_mm, with_level_stop(config, level_first), buffers,
                                      warm, stop, result);
-  if (switchable && error != "stopped") {
+  // A warm result had an ok one before it with the same rule: when it is suspect, this volume is
+  // the odd one, and the next starts cold and may get the second opinion. In a live stream a
+  // second opinion costs up to a second (a level stop leaking along a needle's shadow at 128³).
+  if (switchable && error != "stopped" && !result.warm_start) {
     judge(result, error);
     if (!result.ok || !result.quality_ok) {
       PipelineResult other = smoothed_only;
@@ -328,6 +331,7 @@ PipelineResult run_pipeline(const volume::Volume& input, const Vec3f& seed_mm,
       if (other_error != "stopped") {
         judge(other, other_error);
         other.second_opinion = true;
+        other.start_reason = result.start_reason;  // (both cold: the first says why)
         if (better(other, result)) {
           result = std::move(other);
           error = std::move(other_error);

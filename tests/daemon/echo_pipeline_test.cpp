@@ -140,5 +140,24 @@ TEST(EchoPipeline, WarmStartKeepsTheSecondOpinionsRule) {
   EXPECT_GE(internal::dice(*next.labels, echo.truth), 0.9);
 }
 
+// A warm result that is suspect gets no second opinion: the volume before it was ok with the same
+// rule, and the next volume starts cold. (A live stream pays for a second opinion only then.)
+TEST(EchoPipeline, ASuspectWarmResultGetsNoSecondOpinion) {
+  const sim::Phantom echo = echo_phantom("sphere", 0.5f);
+  PipelineConfig cost_only;
+  cost_only.second_opinion_level_stop = 0.0f;
+  PipelineBuffers buffers;
+  const PipelineResult first = run_pipeline(echo.image, echo.seed_mm, cost_only, buffers);
+  ASSERT_TRUE(first.ok) << first.error;
+  const WarmStart warm{first.balloon, first.balloon_stop, 1.5f, {}, false};
+  const PipelineResult next =
+      run_pipeline(echo.image, echo.seed_mm, PipelineConfig{}, buffers, &warm);
+  ASSERT_TRUE(next.ok) << next.error;
+  ASSERT_TRUE(next.warm_start) << next.start_reason;
+  EXPECT_FALSE(next.quality_ok);
+  EXPECT_FALSE(next.second_opinion);
+  EXPECT_EQ(next.stop_rule, "cost");
+}
+
 }  // namespace
 }  // namespace sonomesh::daemon
