@@ -319,8 +319,8 @@ PipelineResult run_pipeline(const volume::Volume& input, const Vec3f& seed_mm,
   std::string error = segment_stages(input, seed_mm, with_level_stop(config, level_first), buffers,
                                      warm, stop, result);
   // A warm result had an ok one before it with the same rule: when it is suspect, this volume is
-  // the odd one, and the next starts cold and may get the second opinion. In a live stream a
-  // second opinion costs up to a second (a level stop leaking along a needle's shadow at 128³).
+  // the odd one, and the next starts cold and may get the second opinion, so a live stream does
+  // not stall on one (docs/stopping.md departure 9).
   if (switchable && error != "stopped" && !result.warm_start) {
     judge(result, error);
     if (!result.ok || !result.quality_ok) {
