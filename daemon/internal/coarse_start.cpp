@@ -17,9 +17,15 @@ double ms_since(Clock::time_point start) {
   return std::chrono::duration<double, std::milli>(Clock::now() - start).count();
 }
 
+// "leaked", with the balloon's own words when it has them (a balloon rolled back to before its
+// leak has none).
+std::string leaked(const segment::BalloonResult& balloon) {
+  return balloon.error.empty() ? "leaked" : "leaked: " + balloon.error;
+}
+
 // Why a coarse balloon cannot start the fine pass, or empty.
 std::string coarse_failure(const segment::BalloonResult& coarse) {
-  if (coarse.stats.leaked) return "coarse pass leaked: " + coarse.error;
+  if (coarse.stats.leaked) return "coarse pass " + leaked(coarse);
   if (!coarse.error.empty()) return "coarse pass: " + coarse.error;
   if (coarse.mesh.vertices.empty()) return "coarse pass: no balloon";
   return {};
@@ -101,7 +107,7 @@ std::string from_level(const volume::Volume& smoothed, const std::vector<volume:
     report.fine_ms += ms_since(t);
     t = Clock::now();
     if (finer.start_unsafe) return "level " + std::to_string(level) + " " + finer.error;
-    if (finer.stats.leaked) return "level " + std::to_string(level) + " leaked: " + finer.error;
+    if (finer.stats.leaked) return "level " + std::to_string(level) + " " + leaked(finer);
     // (A refusal at full resolution is the plain cold start's as well: the same seed region.)
     if (!finer.error.empty() && level > 0)
       return "level " + std::to_string(level) + ": " + finer.error;
@@ -141,7 +147,7 @@ segment::BalloonResult coarse_to_fine_balloon(const volume::Volume& smoothed,
     }
     why += (why.empty() ? "" : "; ") + failed;
   }
-  report.reason = std::move(why);
+  report.fallback_reason = std::move(why);
   const auto t_plain = Clock::now();
   balloon = segment::inflate_balloon(smoothed, seed_mm, options, stop);
   report.fine_ms += ms_since(t_plain);

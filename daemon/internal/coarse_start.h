@@ -7,6 +7,7 @@
 #include <string>
 #include <vector>
 
+#include "daemon/pipeline.h"
 #include "segment/segment.h"
 #include "volume/volume.h"
 
@@ -26,14 +27,9 @@ struct CoarseStartOptions {
   int max_levels = 2;       // halvings at most
 };
 
-/// What the coarse-to-fine start did, for the report and the benchmarks.
-struct CoarseStartReport {
-  bool used = false;   // the result came from a coarse pass and the finer passes after it
-  std::string reason;  // why not, when it was tried and the plain cold start ran instead
-  double downsample_ms = 0.0, coarse_ms = 0.0, fine_ms = 0.0;  // fine: every finer pass
-  int coarse_iterations = 0;
-  int levels = 0;  // halvings of the coarsest grid
-};
+/// What the coarse-to-fine start did, for the report and the benchmarks (fine_ms: every finer
+/// pass, and the plain cold start when it ran instead).
+using CoarseStartReport = PipelineResult::CoarseStart;
 
 /// `smoothed` (Float32) averaged over 2×2×2 blocks into `coarse` (reused when it has the size):
 /// the spacing doubles, the origin moves to the first block's centre, an odd last slab is
@@ -49,8 +45,8 @@ bool downsample_by_two(const volume::Volume& smoothed, int min_vox, volume::Volu
 /// Each finer pass's A_t starts empty and its start has the seams where the coarser fronts met
 /// opened, so the fronts meet again on the finer grid and mark the tunnels there. An attempt
 /// that is refused, leaks or gives an unsafe start is retried from the next finer grid, and the
-/// plain segment::inflate_balloon on `smoothed` comes last (report.reason says why), so a volume
-/// the coarse grids cannot segment costs only the failed attempts.
+/// plain segment::inflate_balloon on `smoothed` comes last (report.fallback_reason says why), so a
+/// volume the coarse grids cannot segment costs only the failed attempts.
 segment::BalloonResult coarse_to_fine_balloon(const volume::Volume& smoothed,
                                               std::vector<volume::Volume>& pyramid,
                                               const volume::Vec3f& seed_mm,

@@ -113,21 +113,12 @@ segment::BalloonResult cold_balloon(PipelineBuffers& buffers, const Vec3f& seed_
                                     PipelineResult& result) {
   if (!config.coarse_start)
     return segment::inflate_balloon(buffers.smoothed, seed_mm, config.balloon, stop);
-  internal::CoarseStartReport report;
-  segment::BalloonResult balloon =
-      internal::coarse_to_fine_balloon(buffers.smoothed, buffers.pyramid, seed_mm, config.balloon,
-                                       {.inset_vox = config.coarse_start_inset_vox,
-                                        .min_coarse_vox = config.coarse_start_min_vox,
-                                        .max_levels = config.coarse_start_max_levels},
-                                       stop, report);
-  result.coarse_start = {.used = report.used,
-                         .fallback_reason = report.reason,
-                         .downsample_ms = report.downsample_ms,
-                         .coarse_ms = report.coarse_ms,
-                         .fine_ms = report.fine_ms,
-                         .coarse_iterations = report.coarse_iterations,
-                         .levels = report.levels};
-  return balloon;
+  return internal::coarse_to_fine_balloon(buffers.smoothed, buffers.pyramid, seed_mm,
+                                          config.balloon,
+                                          {.inset_vox = config.coarse_start_inset_vox,
+                                           .min_coarse_vox = config.coarse_start_min_vox,
+                                           .max_levels = config.coarse_start_max_levels},
+                                          stop, result.coarse_start);
 }
 
 // §1-3: the balloon, from the warm start's mesh when one is given and safe on this volume, else
@@ -299,8 +290,9 @@ PipelineResult run_pipeline(const volume::Volume& input, const Vec3f& seed_mm,
     r.error = std::move(error);
     internal::quality_verdict(input, buffers.smoothed, no_data, seed_mm, r);
   };
+  bool judged = false;  // the second opinion's comparison has given `result` its verdict
   auto finish = [&](std::string error) {
-    judge(result, std::move(error));
+    if (!judged) judge(result, std::move(error));
     result.timings.total_ms = ms_since(start);
     return std::move(result);
   };
@@ -323,6 +315,7 @@ PipelineResult run_pipeline(const volume::Volume& input, const Vec3f& seed_mm,
   // not stall on one (docs/stopping.md departure 9).
   if (switchable && error != "stopped" && !result.warm_start) {
     judge(result, error);
+    judged = true;
     if (!result.ok || !result.quality_ok) {
       PipelineResult other = smoothed_only;
       std::string other_error = segment_stages(

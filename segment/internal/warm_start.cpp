@@ -14,19 +14,45 @@
 namespace sonomesh::segment::internal {
 namespace {
 
-// Area-weighted vertex normals (unit; zero where the faces cancel).
-std::vector<Vec3f> vertex_normals(const Mesh& m) {
-  std::vector<Vec3f> n(m.vertices.size(), Vec3f::Zero());
-  for (const auto& t : m.triangles) {
-    const Vec3f a = m.vertices[t[0]], b = m.vertices[t[1]], c = m.vertices[t[2]];
-    const Vec3f face = (b - a).cross(c - a);
-    for (const std::uint32_t v : t) n[v] += face;
-  }
+// Area-weighted vertex normals (unit; zero where the faces cancel) of `vertices` points, the
+// triangles handed out by for_each_triangle(add) as add(a, b, c) with counter-clockwise indices.
+template <class Position, class ForEachTriangle>
+std::vector<Vec3f> area_weighted_normals(std::size_t vertices, Position position,
+                                         ForEachTriangle for_each_triangle) {
+  std::vector<Vec3f> n(vertices, Vec3f::Zero());
+  for_each_triangle([&](std::uint32_t a, std::uint32_t b, std::uint32_t c) {
+    const Vec3f pa = position(a);
+    const Vec3f face = (position(b) - pa).cross(position(c) - pa);
+    n[a] += face;
+    n[b] += face;
+    n[c] += face;
+  });
   for (Vec3f& v : n) {
     const float len = v.norm();
     v = len > 0.0f ? Vec3f(v / len) : Vec3f::Zero();
   }
   return n;
+}
+
+std::vector<Vec3f> vertex_normals(const Mesh& m) {
+  return area_weighted_normals(
+      m.vertices.size(), [&](std::uint32_t v) { return m.vertices[v]; },
+      [&](auto add) {
+        for (const auto& t : m.triangles) add(t[0], t[1], t[2]);
+      });
+}
+
+// The same for a BalloonMesh, its deleted faces left out.
+std::vector<Vec3f> vertex_normals(const BalloonMesh& m) {
+  return area_weighted_normals(
+      m.n_vertices(), [&](std::uint32_t v) { return m.point_mm(Vertex{v}); },
+      [&](auto add) {
+        for (std::uint32_t f = 0; f < m.n_faces(); ++f) {
+          if (m.is_deleted(Face{f})) continue;
+          const Halfedge h = m.halfedge(Face{f});
+          add(m.to_vertex(h).idx, m.to_vertex(m.next(h)).idx, m.to_vertex(m.next(m.next(h))).idx);
+        }
+      });
 }
 
 }  // namespace
@@ -102,34 +128,9 @@ void init_start_states(BalloonMesh& start, const ImageSampler& sampler, const Co
   }
 }
 
-namespace {
-
-// Area-weighted vertex normals of a BalloonMesh (outward; zero where the faces cancel).
-std::vector<Vec3f> start_normals(const BalloonMesh& start) {
-  std::vector<Vec3f> normal(start.n_vertices(), Vec3f::Zero());
-  for (std::uint32_t f = 0; f < start.n_faces(); ++f) {
-    if (start.is_deleted(Face{f})) continue;
-    const Halfedge h = start.halfedge(Face{f});
-    const Vertex a = start.to_vertex(h), b = start.to_vertex(start.next(h)),
-                 c = start.to_vertex(start.next(start.next(h)));
-    const Vec3f pa = start.point_mm(a);
-    const Vec3f face = (start.point_mm(b) - pa).cross(start.point_mm(c) - pa);
-    normal[a.idx] += face;
-    normal[b.idx] += face;
-    normal[c.idx] += face;
-  }
-  for (Vec3f& n : normal) {
-    const float len = n.norm();
-    n = len > 0.0f ? Vec3f(n / len) : Vec3f::Zero();
-  }
-  return normal;
-}
-
-}  // namespace
-
 void replay_start_states(BalloonMesh& start, const ImageSampler& sampler, const CostRule& cost,
                          const ReplayPath& path, const StepKernel& box, int threads) {
-  const std::vector<Vec3f> normal = start_normals(start);
+  const std::vector<Vec3f> normal = vertex_normals(start);
   const int floor_steps = static_cast<int>(path.floor_mm / path.step_mm);
   const int cost_steps = static_cast<int>(path.cost_mm / path.step_mm);
   mesh::Workers workers(threads);
