@@ -130,6 +130,10 @@ struct BalloonStats {
   // Leaked, and the balloon is the one from this iteration, before the leak began (0: none kept,
   // error set and no mesh).
   int leak_rollback_iteration = 0;
+  // Leaks sealed: the balloon from before the leak inflated again with the vertices at the gap
+  // it leaked through stopped there, as a reader closes a wall's dropout (docs/stopping.md).
+  int leak_seals = 0;
+  int sealed_vertices = 0;           // summed over the seals
   std::size_t front_voxels = 0;      // voxels in A_t (swept by the front) at the end
   std::size_t front_grid_bytes = 0;  // memory of A_t's sparse grid
 };

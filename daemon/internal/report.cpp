@@ -69,6 +69,11 @@ nlohmann::json report_json(const PipelineResult& result, const std::string& inpu
   // A leaked balloon's surface is the one from before the leak (quality "leak bound").
   if (result.balloon_stats.leaked)
     report["balloon"]["leak_rollback_iteration"] = result.balloon_stats.leak_rollback_iteration;
+  // A sealed leak's vertices at the gap stopped there, not on a wall (docs/stopping.md).
+  if (result.balloon_stats.leak_seals > 0) {
+    report["balloon"]["leak_seals"] = result.balloon_stats.leak_seals;
+    report["balloon"]["sealed_vertices"] = result.balloon_stats.sealed_vertices;
+  }
   report["reconstruction"] = {{"grid", vec_json(result.grid_dims)},
                               {"cell_mm", result.grid_cell_mm}};
   // JSON has no infinity: the narrowest feature only when one was thin enough to matter.

@@ -2,10 +2,12 @@
 // thresholds and S^0, then BalloonEvolution inflates it.
 #include <algorithm>
 #include <cmath>
+#include <optional>
 #include <stdexcept>
 #include <string>
 
 #include "segment/internal/balloon_evolution.h"
+#include "segment/internal/leak_seal.h"
 #include "segment/internal/warm_interior.h"
 #include "segment/internal/warm_start.h"
 #include "segment/segment.h"
@@ -18,6 +20,7 @@ using namespace internal;
 // The share of a warm start's samples that may lie on speckle grains above the wall level when
 // the level stop runs (64³ echo sphere at contrast 0.5: 25 of 2 954, 0.85 %).
 constexpr float kLevelStartGrains = 0.02f;
+constexpr int kMaxLeakSeals = 6;
 
 // The seed's surroundings, analysed in the plain scale first: the relative scale's floor needs
 // the tissue level the rays estimate; then again in the scale actually used for the noise rate.
@@ -135,13 +138,34 @@ struct Prelude {
   }
 };
 
-BalloonResult evolve(const Prelude& pre, BalloonEvolution& evolution, BalloonResult& result,
-                     std::stop_token stop) {
-  evolution.run(std::move(stop));
-  if (result.stats.leaked && !evolution.rolled_back())
-    return pre.finish(result, evolution.leak_message());
-  evolution.take_result(result.mesh, result.stop);
-  result.converged = evolution.converged();
+// Inflates; a leak that rolled back is sealed (leak_seal.h) and the balloon from before it
+// inflated again, up to kMaxLeakSeals times: a wall's dropout is one gap, seldom more.
+BalloonResult evolve(const Prelude& pre, const BalloonOptions& options,
+                     std::optional<BalloonEvolution>& evolution, BalloonResult& result,
+                     const std::stop_token& stop) {
+  BalloonStats& stats = result.stats;
+  int iterations = 0;
+  for (;;) {
+    evolution->run(stop);
+    iterations += stats.iterations;
+    if (!stats.leaked || !evolution->rolled_back() || stats.leak_seals == kMaxLeakSeals) break;
+    std::optional<LeakSeal> seal =
+        seal_leak(evolution->before_leak(), evolution->positions_mm(), pre.vox_mm);
+    if (!seal) break;
+    stats.leaked = false;
+    ++stats.leak_seals;
+    stats.sealed_vertices += seal->sealed;
+    evolution.emplace(pre.smoothed, pre.sampler, options, pre.cost, pre.snap,
+                      std::move(seal->start), stats);
+    evolution->keep_start_before_leak();
+  }
+  const int last_run = stats.iterations;
+  stats.iterations = iterations;
+  if (stats.leaked && !evolution->rolled_back())
+    return pre.finish(result, evolution->leak_message());
+  evolution->take_result(result.mesh, result.stop);
+  if (stats.leak_rollback_iteration > 0) stats.leak_rollback_iteration += iterations - last_run;
+  result.converged = evolution->converged();
   return pre.finish(result, "");
 }
 
@@ -159,9 +183,10 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const Vec3f& se
       std::max(std::min(options.initial_radius_vox * pre.vox_mm, 0.8f * pre.seed.safe_radius_mm),
                1.0f * pre.vox_mm);
   stats.initial_radius_mm = radius_mm;
-  BalloonEvolution evolution(pre.smoothed, pre.sampler, options, pre.cost, pre.snap, seed_mm,
-                             radius_mm, stats);
-  return evolve(pre, evolution, result, std::move(stop));
+  std::optional<BalloonEvolution> evolution;
+  evolution.emplace(pre.smoothed, pre.sampler, options, pre.cost, pre.snap, seed_mm, radius_mm,
+                    stats);
+  return evolve(pre, options, evolution, result, stop);
 }
 
 BalloonResult inflate_balloon_from(const volume::Volume& smoothed_in, const Mesh& start_mesh,
@@ -213,9 +238,10 @@ BalloonResult inflate_balloon_from(const volume::Volume& smoothed_in, const Mesh
          .wall_level = wall_level},
         box, options.threads);
   stats.start_mesh_ms = ms_since(t_start);
-  BalloonEvolution evolution(pre.smoothed, pre.sampler, options, pre.cost, pre.snap,
-                             std::move(start), stats);
-  return evolve(pre, evolution, result, std::move(stop));
+  std::optional<BalloonEvolution> evolution;
+  evolution.emplace(pre.smoothed, pre.sampler, options, pre.cost, pre.snap, std::move(start),
+                    stats);
+  return evolve(pre, options, evolution, result, stop);
 }
 
 BalloonResult inflate_balloon(const volume::Volume& image, float sigma_mm, const Vec3f& seed_mm,

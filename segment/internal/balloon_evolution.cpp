@@ -358,7 +358,8 @@ void BalloonEvolution::remesh() {
 // tenth since the last one, so a balloon closing in on its walls copies itself a few times, not
 // at every pass.
 void BalloonEvolution::keep_before_leak(int iteration, int now_moving) {
-  if (bm_.n_vertices() < 2 * start_vertices_) return;  // S^0's first passes shed vertices
+  // S^0's first passes shed vertices; a sealed start is already a balloon.
+  if (!sealed_start_ && bm_.n_vertices() < 2 * start_vertices_) return;
   peak_moving_ = std::max(peak_moving_, now_moving);
   if (4 * now_moving > 3 * peak_moving_) return;
   if (before_leak_) {
@@ -367,11 +368,22 @@ void BalloonEvolution::keep_before_leak(int iteration, int now_moving) {
     const bool grown = 10 * bm_.n_vertices() > 11 * before_leak_->mesh.vertices.size();
     if (!fewer && !grown) return;
   }
-  Snapshot snapshot{to_plain_mesh(bm_), {}, iteration, now_moving};
-  snapshot.stop.reserve(snapshot.mesh.vertices.size());
+  before_leak_ = snapshot(iteration, now_moving);
+}
+
+// bm_ as it is now (after a remeshing pass or at the start, when it holds the positions).
+BalloonEvolution::Snapshot BalloonEvolution::snapshot(int iteration, int moving) const {
+  Snapshot out{to_plain_mesh(bm_), {}, iteration, moving};
+  out.states.reserve(out.mesh.vertices.size());
   for (std::uint32_t i = 0; i < bm_.n_vertices(); ++i)
-    if (!bm_.is_deleted(Vertex{i})) snapshot.stop.push_back(bm_.states()[i].reason);
-  before_leak_ = std::move(snapshot);
+    if (!bm_.is_deleted(Vertex{i})) out.states.push_back(bm_.states()[i]);
+  return out;
+}
+
+void BalloonEvolution::keep_start_before_leak() {
+  sealed_start_ = true;
+  peak_moving_ = static_cast<int>(active_.size());
+  before_leak_ = snapshot(0, peak_moving_);
 }
 
 // Past the copy kept before a leak, a balloon whose moving vertices grew sixfold and whose mesh
@@ -393,8 +405,9 @@ std::string BalloonEvolution::leak_message() const {
 
 void BalloonEvolution::take_result(Mesh& mesh, std::vector<StopReason>& stop) {
   if (rolled_back()) {
-    mesh = std::move(before_leak_->mesh);
-    stop = std::move(before_leak_->stop);
+    mesh = before_leak_->mesh;
+    stop.clear();
+    for (const auto& s : before_leak_->states) stop.push_back(s.reason);
     stats_.leak_rollback_iteration = before_leak_->iteration;
   } else {
     mesh = to_plain_mesh(bm_);

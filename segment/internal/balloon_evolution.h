@@ -40,6 +40,10 @@ class BalloonEvolution {
                    const BalloonOptions& options, const CostRule& cost, const WallSnap& snap,
                    BalloonMesh start, BalloonStats& stats);
 
+  /// A start that is itself a balloon from before a leak (sealed, leak_seal.h): it is the first
+  /// copy kept, so a leak again rolls back to it or to a later one.
+  void keep_start_before_leak();
+
   /// Evolves until every vertex stopped, the evolution stalled, the leak bound, a stop request
   /// or the iteration limit; then the remaining moving vertices get IterationLimit.
   void run(std::stop_token stop);
@@ -52,6 +56,19 @@ class BalloonEvolution {
   bool rolled_back() const { return stats_.leaked && before_leak_.has_value(); }
   /// The balloon and its stop reasons (counted into stats.stop_counts).
   void take_result(Mesh& mesh, std::vector<StopReason>& stop);
+
+  /// The balloon at the remeshing pass with the fewest moving vertices since their number fell a
+  /// quarter below its peak: a leak begins where that number turns to grow again.
+  struct Snapshot {
+    Mesh mesh;
+    std::vector<VertexState> states;  // per vertex of `mesh`
+    int iteration = 0;
+    int moving = 0;
+  };
+  /// After a rollback: the balloon kept from before the leak, and where the leaked one's vertices
+  /// are now (the sealing of the leak compares the two, leak_seal.h).
+  const Snapshot& before_leak() const { return *before_leak_; }
+  const std::vector<Vec3f>& positions_mm() const { return a_.pos; }
 
  private:
   // Per vertex and iteration: kMoved if it moved, kMarks as well if it also entered another
@@ -72,6 +89,7 @@ class BalloonEvolution {
   bool needs_remesh() const;
   void remesh();
   void keep_before_leak(int iteration, int now_moving);
+  Snapshot snapshot(int iteration, int moving) const;
   bool leaking(int now_moving) const;
 
   const volume::Volume& smoothed_;
@@ -96,17 +114,10 @@ class BalloonEvolution {
   std::vector<std::uint8_t> moved_;
   std::vector<Vec3i> pending_;  // A_t samples to mark, slot r + v of vertex v's ring range
 
-  // The balloon at the remeshing pass with the fewest moving vertices since their number fell a
-  // quarter below its peak: a leak begins where that number turns to grow again.
-  struct Snapshot {
-    Mesh mesh;
-    std::vector<StopReason> stop;
-    int iteration = 0;
-    int moving = 0;
-  };
   std::optional<Snapshot> before_leak_;
   int peak_moving_ = 0;
   std::size_t start_vertices_ = 0;
+  bool sealed_start_ = false;
 
   bool all_stopped_ = false;
   int fewest_moving_ = std::numeric_limits<int>::max();
