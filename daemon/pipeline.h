@@ -131,6 +131,8 @@ struct PipelineResult {
   /// level stop, as configured or as the second opinion); and whether the second opinion ran.
   std::string stop_rule = "cost";
   bool second_opinion = false;
+  /// Tunnels through the target's own darkness were filled (reconstruct::close_dark_tunnels).
+  bool dark_tunnels_closed = false;
   /// A cold start that ran coarse to fine (PipelineConfig::coarse_start), the parts' times (all
   /// within timings.balloon_ms), and why the plain cold start ran instead when it was tried.
   struct CoarseStart {

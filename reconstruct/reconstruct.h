@@ -152,6 +152,21 @@ struct SurfaceResult {
 SurfaceResult reconstruct_surface(const PointCloud& samples, const Vec3f& seed_mm,
                                   const PoissonOptions& options = {});
 
+/// Beyond the paper (issue 15): where the balloon's sheets met round a stretch of the target's
+/// own inside, the reconstruction has a tunnel no wall explains (a false handle). In every slice
+/// of χ across each axis, an outside region enclosed by inside cells (a tunnel's or a void's
+/// cross-section) where the image nowhere reaches `dark_below` is set to `inside_value` (where χ
+/// is lower). Returns the cells filled. A tunnel round a needle or through a torus' hole is as
+/// bright as tissue and stays.
+int fill_dark_tunnels(volume::Volume& chi, float iso, float inside_value,
+                      const volume::Volume& image, float dark_below);
+
+/// fill_dark_tunnels on the surface's χ (`image` the smoothed volume with the target dark), then
+/// marching cubes and the seed's component again. Kept, returning true, only where that lowered
+/// the genus and the surface is closed and encloses the seed; otherwise `surface` is unchanged.
+bool close_dark_tunnels(SurfaceResult& surface, const Vec3f& seed_mm, const volume::Volume& image,
+                        float dark_below);
+
 /// Label volume on the grid of `like` (UInt8, same dims/spacing/origin): 1 where the voxel centre
 /// is inside the closed mesh, by ray parity along x per (j, k) row. Rays are offset by a tiny,
 /// irrational fraction of a voxel so they never pass exactly through mesh vertices or edges.

@@ -170,8 +170,9 @@ void deepest_point(const reconstruct::SurfaceResult& surface, const Vec3f& seed_
 // §4-5: opening at the self-intersections, then Kazhdan's FFT reconstruction and marching cubes
 // on a grid of the volume's voxel size (finer where the opened balloon has a gap or solid too
 // thin for it: a needle's tunnel). Returns the error, empty if there is a surface.
-std::string surface_stage(const volume::Volume& input, const Vec3f& seed_mm,
-                          const PipelineConfig& config, PipelineResult& result) {
+std::string surface_stage(const volume::Volume& input, const volume::Volume& smoothed,
+                          const Vec3f& seed_mm, const PipelineConfig& config,
+                          PipelineResult& result) {
   const auto t = Clock::now();
   const segment::PointCloud samples =
       reconstruct::open_balloon(result.balloon, result.balloon_stop);
@@ -184,6 +185,11 @@ std::string surface_stage(const volume::Volume& input, const Vec3f& seed_mm,
   if (config.cell_from_voxel) poisson.cell_mm = input.spacing_mm().minCoeff();
   reconstruct::SurfaceResult surface = reconstruct::reconstruct_surface(samples, seed_mm, poisson);
   result.timings.reconstruct_ms = surface.reconstruct_ms;
+  const segment::BalloonStats& stats = result.balloon_stats;
+  const auto t_tunnels = Clock::now();
+  result.dark_tunnels_closed = reconstruct::close_dark_tunnels(
+      surface, seed_mm, smoothed, 0.5f * (stats.seed_level + stats.tissue_level));
+  surface.mesh_ms += ms_since(t_tunnels);
   result.timings.mesh_ms = surface.mesh_ms;
   result.grid_dims = Vec3i(surface.grid_dims[0], surface.grid_dims[1], surface.grid_dims[2]);
   result.grid_cell_mm = surface.cell_mm;
@@ -237,7 +243,7 @@ std::string segment_stages(const volume::Volume& input, const Vec3f& seed_mm,
       balloon_stage(buffers, seed_mm, config, warm, stop, result);
   if (stop.stop_requested()) return "stopped";
   if (!balloon.error.empty()) return "balloon: " + balloon.error;
-  std::string error = surface_stage(input, seed_mm, config, result);
+  std::string error = surface_stage(input, buffers.smoothed, seed_mm, config, result);
   // A warm result without a surface, or of another genus than the last (seen once at 128³
   // cyst-needle, 20 volumes/s: genus 0 where the target has 1), gets a cold start instead.
   if (result.warm_start && warm->genus &&
@@ -253,7 +259,7 @@ std::string segment_stages(const volume::Volume& input, const Vec3f& seed_mm,
     result.timings.balloon_ms += warm_ms;
     if (stop.stop_requested()) return "stopped";
     if (!cold.error.empty()) return "balloon: " + cold.error;
-    error = surface_stage(input, seed_mm, config, result);
+    error = surface_stage(input, buffers.smoothed, seed_mm, config, result);
   }
   if (!error.empty()) return error;
   reinflate_stage(buffers, config, stop, result);
