@@ -111,6 +111,9 @@ void quality_verdict(const volume::Volume& input, const volume::Volume& smoothed
   why.clear();
   const float vox_mm = input.spacing_mm().minCoeff();
   if (result.balloon_stats.leaked) why.emplace_back("leak bound");
+  // Sealed at a gap, the surface there is where the balloon was, not a wall; and a balloon that
+  // ran out along a needle's shadow before it leaked is sealed just as well.
+  if (result.balloon_stats.leak_seals > 0) why.emplace_back("leak sealed");
   if (!result.balloon.vertices.empty() &&
       median_distance_mm(result.balloon.vertices, seed_mm) < kStalledRadiusVox * vox_mm)
     why.emplace_back("stalled near the seed");
