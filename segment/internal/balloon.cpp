@@ -164,7 +164,7 @@ BalloonResult evolve(const Prelude& pre, const BalloonOptions& options,
   if (stats.leaked && !evolution->rolled_back())
     return pre.finish(result, evolution->leak_message());
   evolution->take_result(result.mesh, result.stop);
-  if (stats.leak_rollback_iteration > 0) stats.leak_rollback_iteration += iterations - last_run;
+  if (evolution->rolled_back()) stats.leak_rollback_iteration += iterations - last_run;
   result.converged = evolution->converged();
   return pre.finish(result, "");
 }
