@@ -66,8 +66,8 @@ struct PipelineConfig {
 };
 
 /// Wall-clock time per stage in ms; `total` includes everything run_pipeline did. `labels` is the
-/// deepest-point search plus, when labels are wanted, the rasterization on the input grid (not
-/// one of the paper's stages).
+/// deepest-point search (it runs alongside `reinflate`) plus, when labels are wanted, the
+/// rasterization on the input grid (not one of the paper's stages).
 struct StageTimings {
   double smooth_ms = 0, balloon_ms = 0, opening_ms = 0, reconstruct_ms = 0, mesh_ms = 0,
          reinflate_ms = 0, labels_ms = 0, total_ms = 0;

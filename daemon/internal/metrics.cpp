@@ -18,12 +18,16 @@ using volume::Volume;
 // Finite stand-in for "no feature": keeps the parabola intersections below free of inf - inf.
 constexpr float kFar = 1e20f;
 
-// Runs body(first, last) over [0, n) split across the cores; the transforms are memory-bound line
-// sweeps, so two workers on the CI's two cores roughly halve them.
+// Below this many cells a pass runs on one thread: starting the threads costs more than they
+// save on the deepest-point search's box.
+constexpr std::size_t kParallelCells = std::size_t{1} << 21;
+
+// Runs body(first, last) over [0, n) lines of `length` cells split across the cores: two workers
+// on the CI's two cores roughly halve a whole volume's transform.
 template <typename Body>
-void parallel_lines(std::size_t n, Body body) {
+void parallel_lines(std::size_t n, std::size_t length, Body body) {
   const std::size_t workers = std::clamp<std::size_t>(std::thread::hardware_concurrency(), 1, 8);
-  if (workers == 1 || n < 64) {
+  if (workers == 1 || n < 64 || n * length < kParallelCells) {
     body(std::size_t{0}, n);
     return;
   }
@@ -69,7 +73,25 @@ void edt_1d(const float* f, float* out, int n, float s, int* v, float* z) {
   }
 }
 
-// Applies edt_1d along `axis` of a dense float grid in place.
+// Along the first axis the values are still 0 (a feature) or kFar: the lower envelope is then
+// the squared distance to the nearest feature on the line, found by one sweep each way.
+void nearest_feature_1d(const float* f, float* out, int n, float s) {
+  int last = -1;
+  for (int p = 0; p < n; ++p) {
+    if (f[p] == 0.0f) last = p;
+    const float d = static_cast<float>(p - last) * s;
+    out[p] = last < 0 ? kFar : std::min(kFar, d * d);
+  }
+  last = -1;
+  for (int p = n - 1; p >= 0; --p) {
+    if (f[p] == 0.0f) last = p;
+    const float d = static_cast<float>(last - p) * s;
+    if (last >= 0) out[p] = std::min(out[p], d * d);
+  }
+}
+
+// Applies edt_1d along `axis` of a dense float grid in place; axis 0 must come first, on a grid of
+// 0 and kFar only. A line without a positive value is its own transform.
 void transform_axis(std::vector<float>& grid, const Vec3i& dims, int axis, float s) {
   const int n = dims[axis];
   const std::size_t stride = axis == 0   ? 1
@@ -78,7 +100,7 @@ void transform_axis(std::vector<float>& grid, const Vec3i& dims, int axis, float
   const int a = axis == 0 ? 1 : 0;  // the two other axes enumerate the lines
   const int b = axis == 2 ? 1 : 2;
   const std::size_t lines = static_cast<std::size_t>(dims[a]) * dims[b];
-  parallel_lines(lines, [&](std::size_t first, std::size_t last) {
+  parallel_lines(lines, static_cast<std::size_t>(n), [&](std::size_t first, std::size_t last) {
     std::vector<float> f(n), out(n), z(n + 1);
     std::vector<int> v(n);
     for (std::size_t line = first; line < last; ++line) {
@@ -87,8 +109,16 @@ void transform_axis(std::vector<float>& grid, const Vec3i& dims, int axis, float
       ijk[b] = static_cast<int>(line / dims[a]);
       const std::size_t base =
           (static_cast<std::size_t>(ijk.z()) * dims.y() + ijk.y()) * dims.x() + ijk.x();
-      for (int p = 0; p < n; ++p) f[p] = grid[base + p * stride];
-      edt_1d(f.data(), out.data(), n, s, v.data(), z.data());
+      bool positive = false;
+      for (int p = 0; p < n; ++p) {
+        f[p] = grid[base + p * stride];
+        positive = positive || f[p] > 0.0f;
+      }
+      if (!positive) continue;
+      if (axis == 0)
+        nearest_feature_1d(f.data(), out.data(), n, s);
+      else
+        edt_1d(f.data(), out.data(), n, s, v.data(), z.data());
       for (int p = 0; p < n; ++p) grid[base + p * stride] = out[p];
     }
   });

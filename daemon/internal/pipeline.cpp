@@ -4,6 +4,8 @@
 
 #include <algorithm>
 #include <chrono>
+#include <future>
+#include <tuple>
 #include <vector>
 
 #include "daemon/internal/coarse_start.h"
@@ -154,17 +156,13 @@ segment::BalloonResult balloon_stage(PipelineBuffers& buffers, const Vec3f& seed
 // the nearest voxel centre as the labels' was. (From the labels it took a rasterisation on the
 // input grid and a distance transform of it: 15-23 ms of a 128³ volume, and the labels only for
 // that.) The reinflation moves the surface out by under two voxels, which does not move the
-// deepest point of a target worth tracking.
-void deepest_point(const reconstruct::SurfaceResult& surface, const Vec3f& seed_mm,
-                   const volume::Volume& input, PipelineResult& result) {
-  const auto t = Clock::now();
-  const mesh::Box box = mesh::bounding_box(result.mesh);
-  if (const auto deepest =
-          internal::deepest_inside(surface.indicator, surface.iso, box.lo_mm, box.hi_mm, seed_mm,
-                                   input.spacing_mm().minCoeff()))
-    result.deepest_interior_mm =
-        input.index_to_mm(input.mm_to_index(deepest->position_mm).array().round().matrix());
-  result.timings.labels_ms += ms_since(t);
+// deepest point of a target worth tracking, so the box is the reconstructed surface's.
+std::optional<Vec3f> deepest_point(const volume::Volume& indicator, float iso, const mesh::Box& box,
+                                   const Vec3f& seed_mm, const volume::Volume& input) {
+  const auto deepest = internal::deepest_inside(indicator, iso, box.lo_mm, box.hi_mm, seed_mm,
+                                                input.spacing_mm().minCoeff());
+  if (!deepest) return std::nullopt;
+  return input.index_to_mm(input.mm_to_index(deepest->position_mm).array().round().matrix());
 }
 
 // §4-5: opening at the self-intersections, then Kazhdan's FFT reconstruction and marching cubes
@@ -172,7 +170,7 @@ void deepest_point(const reconstruct::SurfaceResult& surface, const Vec3f& seed_
 // thin for it: a needle's tunnel). Returns the error, empty if there is a surface.
 std::string surface_stage(const volume::Volume& input, const volume::Volume& smoothed,
                           const Vec3f& seed_mm, const PipelineConfig& config,
-                          PipelineResult& result) {
+                          PipelineResult& result, reconstruct::SurfaceResult& surface) {
   const auto t = Clock::now();
   const segment::PointCloud samples =
       reconstruct::open_balloon(result.balloon, result.balloon_stop);
@@ -183,7 +181,7 @@ std::string surface_stage(const volume::Volume& input, const volume::Volume& smo
            " oriented points after the opening";
   reconstruct::PoissonOptions poisson = config.poisson;
   if (config.cell_from_voxel) poisson.cell_mm = input.spacing_mm().minCoeff();
-  reconstruct::SurfaceResult surface = reconstruct::reconstruct_surface(samples, seed_mm, poisson);
+  surface = reconstruct::reconstruct_surface(samples, seed_mm, poisson);
   result.timings.reconstruct_ms = surface.reconstruct_ms;
   const segment::BalloonStats& stats = result.balloon_stats;
   const auto t_tunnels = Clock::now();
@@ -199,12 +197,6 @@ std::string surface_stage(const volume::Volume& input, const volume::Volume& smo
   result.enclosed_volume_ml = surface.topology.volume_ml;
   if (result.mesh.triangles.empty()) return "the reconstruction produced no surface";
   if (!surface.seed_enclosed) return "the reconstructed surface does not enclose the seed";
-  deepest_point(surface, seed_mm, input, result);
-  if (config.want_indicator) {
-    volume::Volume indicator = std::move(surface.indicator);
-    for (float& value : indicator.f32()) value -= surface.iso;  // the surface is the zero level
-    result.indicator = std::move(indicator);
-  }
   return {};
 }
 
@@ -243,7 +235,8 @@ std::string segment_stages(const volume::Volume& input, const Vec3f& seed_mm,
       balloon_stage(buffers, seed_mm, config, warm, stop, result);
   if (stop.stop_requested()) return "stopped";
   if (!balloon.error.empty()) return "balloon: " + balloon.error;
-  std::string error = surface_stage(input, buffers.smoothed, seed_mm, config, result);
+  reconstruct::SurfaceResult surface;
+  std::string error = surface_stage(input, buffers.smoothed, seed_mm, config, result, surface);
   // A warm result without a surface, or of another genus than the last (seen once at 128³
   // cyst-needle, 20 volumes/s: genus 0 where the target has 1), gets a cold start instead.
   if (result.warm_start && warm->genus &&
@@ -259,10 +252,22 @@ std::string segment_stages(const volume::Volume& input, const Vec3f& seed_mm,
     result.timings.balloon_ms += warm_ms;
     if (stop.stop_requested()) return "stopped";
     if (!cold.error.empty()) return "balloon: " + cold.error;
-    error = surface_stage(input, buffers.smoothed, seed_mm, config, result);
+    error = surface_stage(input, buffers.smoothed, seed_mm, config, result, surface);
   }
   if (!error.empty()) return error;
+  // The deepest point reads χ and the reinflation the smoothed volume, each its own result: the
+  // two run at once, because neither keeps both cores busy.
+  const auto t_deepest = Clock::now();
+  auto deepest = std::async(std::launch::async, [&, box = mesh::bounding_box(result.mesh)] {
+    std::optional<Vec3f> point = deepest_point(surface.indicator, surface.iso, box, seed_mm, input);
+    return std::pair(point, ms_since(t_deepest));
+  });
   reinflate_stage(buffers, config, stop, result);
+  std::tie(result.deepest_interior_mm, result.timings.labels_ms) = deepest.get();
+  if (config.want_indicator) {
+    for (float& value : surface.indicator.f32()) value -= surface.iso;  // the surface is level 0
+    result.indicator = std::move(surface.indicator);
+  }
   return stop.stop_requested() ? "stopped" : "";
 }
 

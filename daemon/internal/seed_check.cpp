@@ -20,31 +20,47 @@ std::string format_point(const Vec3f& p) {
   return buffer;
 }
 
+// f(value) for every `step`-th voxel along each axis, in memory order: the voxel type is resolved
+// once, not per voxel (Volume::value per voxel cost more than the histogram itself).
+template <typename F>
+void for_each_sample(const Volume& input, int step, F&& f) {
+  const Vec3i d = input.dims();
+  auto walk = [&](const auto& data) {
+    for (int k = 0; k < d.z(); k += step)
+      for (int j = 0; j < d.y(); j += step) {
+        const std::size_t row = input.linear_index(0, j, k);
+        for (int i = 0; i < d.x(); i += step) f(static_cast<float>(data[row + i]));
+      }
+  };
+  switch (input.type()) {
+    case volume::VoxelType::UInt8:
+      return walk(input.u8());
+    case volume::VoxelType::UInt16:
+      return walk(input.u16());
+    default:
+      return walk(input.f32());
+  }
+}
+
 // Otsu's threshold on a subsampled histogram: splits the volume into the dark class (target,
 // background) and the bright class (tissue) whatever their proportions. Subsampling every second
 // voxel per axis keeps this at a few ms for 256³ and changes the threshold by less than a bin.
 float otsu_threshold(const Volume& input) {
-  const Vec3i d = input.dims();
   const int step = input.voxel_count() > 200000 ? 2 : 1;
   float lo = input.value(0, 0, 0), hi = lo;
-  for (int k = 0; k < d.z(); k += step)
-    for (int j = 0; j < d.y(); j += step)
-      for (int i = 0; i < d.x(); i += step) {
-        const float v = input.value(i, j, k);
-        lo = std::min(lo, v);
-        hi = std::max(hi, v);
-      }
+  for_each_sample(input, step, [&](float v) {
+    lo = std::min(lo, v);
+    hi = std::max(hi, v);
+  });
   if (!(hi > lo)) return hi;
   constexpr int kBins = 256;
   std::array<double, kBins> histogram{};
   const float scale = (kBins - 1) / (hi - lo);
   double total = 0.0;
-  for (int k = 0; k < d.z(); k += step)
-    for (int j = 0; j < d.y(); j += step)
-      for (int i = 0; i < d.x(); i += step) {
-        histogram[static_cast<int>((input.value(i, j, k) - lo) * scale)] += 1.0;
-        total += 1.0;
-      }
+  for_each_sample(input, step, [&](float v) {
+    histogram[static_cast<int>((v - lo) * scale)] += 1.0;
+    total += 1.0;
+  });
   double sum_all = 0.0;
   for (int b = 0; b < kBins; ++b) sum_all += b * histogram[b];
   double weight_dark = 0.0, sum_dark = 0.0, best_variance = -1.0;

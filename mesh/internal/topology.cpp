@@ -68,8 +68,10 @@ double signed_volume_mm3(const Mesh& mesh) {
   return vol / 6.0;
 }
 
-// Directed half-edges (a, b) as 64-bit keys; an undirected edge is closed when it is exactly
-// {(a, b), (b, a)}. Counts the undirected edges, per component of `label` if given.
+// The undirected edges, each listed at its lower vertex: per vertex v, the higher ends of its
+// half-edges (a, b) with min(a, b) = v, the direction in the lowest bit. A vertex's list is a
+// handful of entries, so small sorts replace a sort of every half-edge. An edge is closed when
+// it is exactly {(a, b), (b, a)}. Counts the undirected edges, per component of `label` if given.
 struct EdgeCount {
   int edges = 0;
   bool watertight = false;
@@ -77,28 +79,33 @@ struct EdgeCount {
 
 EdgeCount count_edges(const Mesh& mesh, const std::vector<int>* label,
                       std::vector<int>* edges_per_comp) {
-  std::vector<std::uint64_t> half;
-  half.reserve(3 * mesh.triangles.size());
+  const std::size_t nv = mesh.vertices.size();
+  std::vector<std::uint32_t> start(nv + 1, 0);
   for (const auto& t : mesh.triangles)
-    for (int i = 0; i < 3; ++i) half.push_back(std::uint64_t(t[i]) << 32 | t[(i + 1) % 3]);
-  std::vector<std::uint64_t> undirected(half.size());
-  std::transform(half.begin(), half.end(), undirected.begin(), [](std::uint64_t h) {
-    const auto a = std::uint32_t(h >> 32), b = std::uint32_t(h);
-    return std::uint64_t(std::min(a, b)) << 32 | std::max(a, b);
-  });
-  std::sort(half.begin(), half.end());
-  std::sort(undirected.begin(), undirected.end());
+    for (int i = 0; i < 3; ++i) ++start[std::min(t[i], t[(i + 1) % 3]) + 1];
+  for (std::size_t v = 0; v < nv; ++v) start[v + 1] += start[v];
+  std::vector<std::uint32_t> fill(start.begin(), start.end() - 1);
+  std::vector<std::uint64_t> ends(start[nv]);
+  for (const auto& t : mesh.triangles)
+    for (int i = 0; i < 3; ++i) {
+      const std::uint32_t a = t[i], b = t[(i + 1) % 3];
+      const std::uint32_t lo = std::min(a, b), hi = std::max(a, b);
+      ends[fill[lo]++] = std::uint64_t(hi) << 1 | (a < b ? 0u : 1u);
+    }
   EdgeCount count;
   count.watertight = !mesh.triangles.empty();
-  if (std::adjacent_find(half.begin(), half.end()) != half.end())
-    count.watertight = false;  // same direction twice
-  for (std::size_t i = 0; i < undirected.size();) {
-    std::size_t j = i;
-    while (j < undirected.size() && undirected[j] == undirected[i]) ++j;
-    if (j - i != 2) count.watertight = false;
-    ++count.edges;
-    if (label) ++(*edges_per_comp)[(*label)[std::uint32_t(undirected[i] >> 32)]];
-    i = j;
+  for (std::size_t v = 0; v < nv; ++v) {
+    const auto first = ends.begin() + start[v], last = ends.begin() + start[v + 1];
+    std::sort(first, last);
+    for (auto i = first; i != last;) {
+      auto j = i;
+      while (j != last && (*j >> 1) == (*i >> 1)) ++j;
+      // Exactly two, one each way (sorted: the direction bits 0 then 1).
+      if (j - i != 2 || (*i & 1u) == (*(i + 1) & 1u)) count.watertight = false;
+      ++count.edges;
+      if (label) ++(*edges_per_comp)[(*label)[v]];
+      i = j;
+    }
   }
   return count;
 }
