@@ -52,6 +52,11 @@ struct PipelineConfig {
   /// the verdict calls ok, else the one with the larger wall support. 0 = off; not tried when
   /// balloon.level_stop_fraction is already set.
   float second_opinion_level_stop = 0.5f;
+  /// The coarse retry (docs/stopping.md departure 12): a result that stalled on the texture
+  /// around the seed with both stop rules is segmented again on the volume smoothed at this many
+  /// speckle grains (clamped to 2-3 voxels); such a result is always suspect ("coarse
+  /// pre-filter"). 0 = off; only with the automatic pre-filter and the second opinion on.
+  float coarse_retry_grains = 2.2f;
   /// The cold start coarse to fine (issue 17): the balloon inflates on the smoothed volume
   /// averaged over 2×2×2 blocks, then a short warm start at full resolution takes it from there
   /// to the wall; it falls back to the plain cold start when the coarse pass fails. false: the
@@ -122,6 +127,8 @@ struct PipelineResult {
   /// The speckle's grain measured around the seed and the pre-filter's sigma it chose (mm).
   float speckle_grain_mm = 0.0f;
   float smooth_sigma_mm = 0.0f;
+  /// The result comes from the coarse retry (PipelineConfig::coarse_retry_grains).
+  bool coarse_retry = false;
 
   /// The balloon started from a warm start's mesh (false: from the sphere at the seed), and why
   /// a warm start that was asked for was not used (the pipeline's safety check said so).

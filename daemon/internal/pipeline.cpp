@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <functional>
 #include <future>
 #include <tuple>
 #include <vector>
@@ -288,6 +289,82 @@ bool better(const PipelineResult& other, const PipelineResult& first) {
   return !other.quality_ok && other.wall_support > first.wall_support;
 }
 
+// Judges a result: sets ok, error and the quality verdict.
+using Judge = std::function<void(PipelineResult&, std::string)>;
+
+// One scale's segmentation: the first stop rule (the one the warm start's result came from),
+// and where its cold result is suspect or missing, the other rule's on the same smoothed volume
+// (the second opinion, docs/stopping.md departure 9), the better kept. A warm result had an ok
+// one before it with the same rule: when it is suspect, this volume is the odd one, and the next
+// starts cold and may get the second opinion, so a live stream does not stall on one. Sets
+// `judged` when `result` has its verdict. Returns the error, empty if there is a surface.
+std::string segment_opinions(const volume::Volume& input, const Vec3f& seed_mm,
+                             const PipelineConfig& config, PipelineBuffers& buffers,
+                             const WarmStart* warm, const std::stop_token& stop, const Judge& judge,
+                             PipelineResult& result, bool& judged) {
+  const PipelineResult smoothed_only = result;
+  const bool switchable =
+      config.second_opinion_level_stop > 0.0f && !(config.balloon.level_stop_fraction > 0.0f);
+  const bool level_first = switchable && warm && warm->level_stop;
+  std::string error = segment_stages(input, seed_mm, with_level_stop(config, level_first), buffers,
+                                     warm, stop, result);
+  if (!switchable || error == "stopped" || result.warm_start) return error;
+  judge(result, error);
+  judged = true;
+  if (result.ok && result.quality_ok) return error;
+  PipelineResult other = smoothed_only;
+  std::string other_error = segment_stages(input, seed_mm, with_level_stop(config, !level_first),
+                                           buffers, nullptr, stop, other);
+  result.second_opinion = true;
+  if (other_error == "stopped") return error;
+  judge(other, other_error);
+  other.second_opinion = true;
+  other.start_reason = result.start_reason;  // (both cold: the first says why)
+  if (!better(other, result)) return error;
+  result = std::move(other);
+  return other_error;
+}
+
+// The verdict's reasons for a balloon that stopped on the texture around the seed.
+bool stalled_on_texture(const PipelineResult& r) {
+  for (const std::string& why : r.quality_reasons)
+    if (why == "stalled near the seed" || why == "implausibly small" ||
+        why == "surface not on the target's wall")
+      return true;
+  return false;
+}
+
+// The coarse retry's sigma: `grains` speckle grains, 2-3 voxels of the finest axis (beyond 3 a
+// needle's tunnel closes).
+float coarse_sigma_mm(const volume::Volume& input, float grain_mm, float grains) {
+  const float vox_mm = input.spacing_mm().minCoeff();
+  return std::clamp(grains * grain_mm, 2.0f * vox_mm, 3.0f * vox_mm);
+}
+
+// The coarse retry (docs/stopping.md departure 12): at low contrast both stop rules stop on the
+// speckle the grain-sized pre-filter leaves; a coarser one averages it out at the price of the
+// wall's sharpness. Its result replaces `result` unless it stalled as well and is no better.
+void coarse_retry(const volume::Volume& input, const Vec3f& seed_mm, const PipelineConfig& config,
+                  PipelineBuffers& buffers, const std::stop_token& stop, const Judge& judge,
+                  PipelineResult& result, std::string& error) {
+  PipelineConfig coarse = config;
+  coarse.smooth_sigma_mm =
+      coarse_sigma_mm(input, result.speckle_grain_mm, config.coarse_retry_grains);
+  PipelineResult other;
+  std::vector<std::uint8_t> no_data;  // (the same as the first smoothing's)
+  smooth_stage(input, seed_mm, coarse, buffers, no_data, other);
+  bool judged = false;
+  std::string other_error =
+      segment_opinions(input, seed_mm, coarse, buffers, nullptr, stop, judge, other, judged);
+  if (other_error == "stopped") return;
+  other.coarse_retry = true;  // (after the second opinion's choice, which it would force)
+  judge(other, other_error);
+  other.timings.smooth_ms += result.timings.smooth_ms;
+  if (!(other.ok && !stalled_on_texture(other)) && !better(other, result)) return;
+  result = std::move(other);
+  error = std::move(other_error);
+}
+
 }  // namespace
 
 PipelineResult run_pipeline(const volume::Volume& input, const Vec3f& seed_mm,
@@ -296,7 +373,7 @@ PipelineResult run_pipeline(const volume::Volume& input, const Vec3f& seed_mm,
   const auto start = Clock::now();
   PipelineResult result;
   std::vector<std::uint8_t> no_data;  // (set in §0)
-  auto judge = [&](PipelineResult& r, std::string error) {
+  const Judge judge = [&](PipelineResult& r, std::string error) {
     r.ok = error.empty();
     r.error = std::move(error);
     internal::quality_verdict(input, buffers.smoothed, no_data, seed_mm, r);
@@ -314,35 +391,11 @@ PipelineResult run_pipeline(const volume::Volume& input, const Vec3f& seed_mm,
     return finish("the seed lies outside the volume");
   smooth_stage(input, seed_mm, config, buffers, no_data, result);
   if (stop.stop_requested()) return finish("stopped");
-  const PipelineResult smoothed_only = result;
-  // The first try runs the rule the warm start's result came from; the second opinion the other.
-  const bool switchable =
-      config.second_opinion_level_stop > 0.0f && !(config.balloon.level_stop_fraction > 0.0f);
-  const bool level_first = switchable && warm && warm->level_stop;
-  std::string error = segment_stages(input, seed_mm, with_level_stop(config, level_first), buffers,
-                                     warm, stop, result);
-  // A warm result had an ok one before it with the same rule: when it is suspect, this volume is
-  // the odd one, and the next starts cold and may get the second opinion, so a live stream does
-  // not stall on one (docs/stopping.md departure 9).
-  if (switchable && error != "stopped" && !result.warm_start) {
-    judge(result, error);
-    judged = true;
-    if (!result.ok || !result.quality_ok) {
-      PipelineResult other = smoothed_only;
-      std::string other_error = segment_stages(
-          input, seed_mm, with_level_stop(config, !level_first), buffers, nullptr, stop, other);
-      result.second_opinion = true;
-      if (other_error != "stopped") {
-        judge(other, other_error);
-        other.second_opinion = true;
-        other.start_reason = result.start_reason;  // (both cold: the first says why)
-        if (better(other, result)) {
-          result = std::move(other);
-          error = std::move(other_error);
-        }
-      }
-    }
-  }
+  std::string error =
+      segment_opinions(input, seed_mm, config, buffers, warm, stop, judge, result, judged);
+  if (judged && result.second_opinion && !config.smooth_sigma_mm &&
+      config.coarse_retry_grains > 0.0f && stalled_on_texture(result))
+    coarse_retry(input, seed_mm, config, buffers, stop, judge, result, error);
   if (!error.empty()) return finish(std::move(error));
   if (config.want_labels) labels_stage(input, result);
   return finish("");

@@ -138,6 +138,9 @@ void quality_verdict(const volume::Volume& input, const volume::Volume& smoothed
                                        result.balloon_stats.tissue_level);
     if (result.wall_support >= 0.0f && result.wall_support < kLeastWallSupport)
       why.emplace_back("surface not on the target's wall");
+    // At the coarse retry's scale a surface a few voxels inside the wall still sees the wall
+    // ahead: the wall test cannot tell it from one on the wall, so the result is never ok.
+    if (result.coarse_retry) why.emplace_back("coarse pre-filter");
   } else if (why.empty()) {
     why.emplace_back("failed");
   }

@@ -44,7 +44,8 @@ nlohmann::json report_json(const PipelineResult& result, const std::string& inpu
   else if (!c.fallback_reason.empty())
     report["coarse_start"] = {{"fallback_reason", c.fallback_reason}};
   report["smoothing"] = {{"sigma_mm", result.smooth_sigma_mm},
-                         {"speckle_grain_mm", result.speckle_grain_mm}};
+                         {"speckle_grain_mm", result.speckle_grain_mm},
+                         {"coarse_retry", result.coarse_retry}};
   const StageTimings& t = result.timings;
   nlohmann::json& timings = report["timings_ms"];
   for (const auto& [stage, ms] : t.stages()) timings[stage] = ms;

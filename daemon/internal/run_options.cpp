@@ -221,6 +221,9 @@ std::vector<OptionSpec> pipeline_options() {
   o.push_back(num("pipeline", "second_opinion_level_stop", "", closed(0, 0.99),
                   "level stop of the second try on a suspect result; 0: none",
                   REF(pipeline.second_opinion_level_stop)));
+  o.push_back(num("pipeline", "coarse_retry_grains", "grains", closed(0, 10),
+                  "pre-filter of the retry when both rules stalled; 0: none",
+                  REF(pipeline.coarse_retry_grains)));
   o.push_back(flag("pipeline", "coarse_start",
                    "cold start on the volume halved, then to the wall at full resolution",
                    REF(pipeline.coarse_start)));
