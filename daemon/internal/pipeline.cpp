@@ -168,10 +168,13 @@ std::optional<Vec3f> deepest_point(const volume::Volume& indicator, float iso, c
 
 // §4-5: opening at the self-intersections, then Kazhdan's FFT reconstruction and marching cubes
 // on a grid of the volume's voxel size (finer where the opened balloon has a gap or solid too
-// thin for it: a needle's tunnel). Returns the error, empty if there is a surface.
+// thin for it: a needle's tunnel); then tunnels through the target's darkness filled, unless the
+// genus is no higher than `known_genus` (a warm start's previous result). Returns the error, empty
+// if there is a surface.
 std::string surface_stage(const volume::Volume& input, const volume::Volume& smoothed,
                           const Vec3f& seed_mm, const PipelineConfig& config,
-                          PipelineResult& result, reconstruct::SurfaceResult& surface) {
+                          std::optional<int> known_genus, PipelineResult& result,
+                          reconstruct::SurfaceResult& surface) {
   const auto t = Clock::now();
   const segment::PointCloud samples =
       reconstruct::open_balloon(result.balloon, result.balloon_stop);
@@ -184,11 +187,14 @@ std::string surface_stage(const volume::Volume& input, const volume::Volume& smo
   if (config.cell_from_voxel) poisson.cell_mm = input.spacing_mm().minCoeff();
   surface = reconstruct::reconstruct_surface(samples, seed_mm, poisson);
   result.timings.reconstruct_ms = surface.reconstruct_ms;
-  const segment::BalloonStats& stats = result.balloon_stats;
-  const auto t_tunnels = Clock::now();
-  result.dark_tunnels_closed = reconstruct::close_dark_tunnels(
-      surface, seed_mm, smoothed, 0.5f * (stats.seed_level + stats.tissue_level));
-  surface.mesh_ms += ms_since(t_tunnels);
+  // A warm result of the previous result's genus has no handle to explain.
+  if (!(known_genus && surface.topology.genus <= *known_genus)) {
+    const segment::BalloonStats& stats = result.balloon_stats;
+    const auto t_tunnels = Clock::now();
+    result.dark_tunnels_closed = reconstruct::close_dark_tunnels(
+        surface, seed_mm, smoothed, 0.5f * (stats.seed_level + stats.tissue_level));
+    surface.mesh_ms += ms_since(t_tunnels);
+  }
   result.timings.mesh_ms = surface.mesh_ms;
   result.grid_dims = Vec3i(surface.grid_dims[0], surface.grid_dims[1], surface.grid_dims[2]);
   result.grid_cell_mm = surface.cell_mm;
@@ -237,7 +243,9 @@ std::string segment_stages(const volume::Volume& input, const Vec3f& seed_mm,
   if (stop.stop_requested()) return "stopped";
   if (!balloon.error.empty()) return "balloon: " + balloon.error;
   reconstruct::SurfaceResult surface;
-  std::string error = surface_stage(input, buffers.smoothed, seed_mm, config, result, surface);
+  std::string error =
+      surface_stage(input, buffers.smoothed, seed_mm, config,
+                    result.warm_start ? warm->genus : std::nullopt, result, surface);
   // A warm result without a surface, or of another genus than the last (seen once at 128³
   // cyst-needle, 20 volumes/s: genus 0 where the target has 1), gets a cold start instead.
   if (result.warm_start && warm->genus &&
@@ -253,7 +261,7 @@ std::string segment_stages(const volume::Volume& input, const Vec3f& seed_mm,
     result.timings.balloon_ms += warm_ms;
     if (stop.stop_requested()) return "stopped";
     if (!cold.error.empty()) return "balloon: " + cold.error;
-    error = surface_stage(input, buffers.smoothed, seed_mm, config, result, surface);
+    error = surface_stage(input, buffers.smoothed, seed_mm, config, std::nullopt, result, surface);
   }
   if (!error.empty()) return error;
   // The deepest point reads χ and the reinflation the smoothed volume, each its own result: the

@@ -10,23 +10,25 @@ namespace {
 
 using volume::Vec3i;
 
-// One slice of χ across `axis` at `s`: cell (u, v) of the slice is grid cell at(u, v).
+// One slice of χ across `axis` at `s`, within the box [lo, hi] (grid cells): cell (u, v) of the
+// slice is grid cell at(u, v), u and v counted from the box's corner.
 struct Slice {
   const volume::Volume& chi;
   int axis, s;
-  int du() const { return chi.dims()[(axis + 1) % 3]; }
-  int dv() const { return chi.dims()[(axis + 2) % 3]; }
+  Vec3i lo, hi;
+  int du() const { return hi[(axis + 1) % 3] - lo[(axis + 1) % 3] + 1; }
+  int dv() const { return hi[(axis + 2) % 3] - lo[(axis + 2) % 3] + 1; }
   Vec3i at(int u, int v) const {
     Vec3i c;
     c[axis] = s;
-    c[(axis + 1) % 3] = u;
-    c[(axis + 2) % 3] = v;
+    c[(axis + 1) % 3] = lo[(axis + 1) % 3] + u;
+    c[(axis + 2) % 3] = lo[(axis + 2) % 3] + v;
     return c;
   }
 };
 
-// The slice's holes: outside cells (4-connected) that do not reach the slice's border, each
-// hole as its list of cells.
+// The slice's holes: outside cells (4-connected) that do not reach the box's border, each hole
+// as its list of cells.
 std::vector<std::vector<Vec3i>> slice_holes(const Slice& slice, float iso) {
   const int nu = slice.du(), nv = slice.dv();
   std::vector<std::uint8_t> seen(static_cast<std::size_t>(nu) * nv, 0);
@@ -60,6 +62,21 @@ std::vector<std::vector<Vec3i>> slice_holes(const Slice& slice, float iso) {
   return holes;
 }
 
+// The inside cells' box grown by one cell (clipped to the grid): outside it nothing is enclosed,
+// and its rim is outside. Empty (lo > hi) when nothing is inside.
+std::pair<Vec3i, Vec3i> inside_box(const volume::Volume& chi, float iso) {
+  Vec3i lo = chi.dims(), hi = Vec3i::Constant(-1);
+  for (int k = 0; k < chi.dims().z(); ++k)
+    for (int j = 0; j < chi.dims().y(); ++j)
+      for (int i = 0; i < chi.dims().x(); ++i)
+        if (chi.f32()[chi.linear_index(i, j, k)] > iso) {
+          lo = lo.cwiseMin(Vec3i(i, j, k));
+          hi = hi.cwiseMax(Vec3i(i, j, k));
+        }
+  return {(lo - Vec3i::Ones()).cwiseMax(Vec3i::Zero()),
+          (hi + Vec3i::Ones()).cwiseMin(chi.dims() - Vec3i::Ones())};
+}
+
 // The brightest the image gets over the cells: a needle's tunnel holds the needle, a false one
 // nothing brighter than the inside.
 float max_image(const volume::Volume& chi, const volume::Volume& image,
@@ -75,9 +92,10 @@ float max_image(const volume::Volume& chi, const volume::Volume& image,
 int fill_dark_tunnels(volume::Volume& chi, float iso, float inside_value,
                       const volume::Volume& image, float dark_below) {
   int filled = 0;
+  const auto [lo, hi] = inside_box(chi, iso);
   for (int axis = 0; axis < 3; ++axis)
-    for (int s = 0; s < chi.dims()[axis]; ++s)
-      for (const auto& hole : slice_holes(Slice{chi, axis, s}, iso)) {
+    for (int s = lo[axis]; s <= hi[axis]; ++s)
+      for (const auto& hole : slice_holes(Slice{chi, axis, s, lo, hi}, iso)) {
         if (max_image(chi, image, hole) >= dark_below) continue;
         for (const Vec3i& c : hole) {
           float& x = chi.f32()[chi.linear_index(c.x(), c.y(), c.z())];
