@@ -155,11 +155,15 @@ SurfaceResult reconstruct_surface(const PointCloud& samples, const Vec3f& seed_m
 /// Beyond the paper (issue 15): where the balloon's sheets met round a stretch of the target's
 /// own inside, the reconstruction has a tunnel no wall explains (a false handle). In every slice
 /// of χ across each axis, an outside region enclosed by inside cells (a tunnel's or a void's
-/// cross-section) where the image nowhere reaches `dark_below` is set to `inside_value` (where χ
-/// is lower). Returns the cells filled. A tunnel round a needle or through a torus' hole is as
-/// bright as tissue and stays.
-int fill_dark_tunnels(volume::Volume& chi, float iso, float inside_value,
-                      const volume::Volume& image, float dark_below);
+/// cross-section) where the image nowhere reaches `dark_below` is set to `inside_value`.
+/// Returns the cells filled with their values before, so a caller can give them back. A tunnel
+/// round a needle or through a torus' hole is as bright as tissue and stays.
+struct FilledCell {
+  std::size_t index;  // linear index in χ
+  float was;          // χ there before
+};
+std::vector<FilledCell> fill_dark_tunnels(volume::Volume& chi, float iso, float inside_value,
+                                          const volume::Volume& image, float dark_below);
 
 /// fill_dark_tunnels on the surface's χ (`image` the smoothed volume with the target dark), then
 /// marching cubes and the seed's component again. Kept, returning true, only where that lowered

@@ -155,10 +155,12 @@ struct BalloonResult {
 /// away from its path).
 /// A seed that is not in a hypoechoic region (brighter than or as bright as its surroundings,
 /// e.g. on the needle or in tissue) gives a result with `error` set and an empty mesh. A balloon
-/// that leaks out of its target (leak bound) has `stats.leaked`; its mesh is the balloon from
-/// before the leak began, its vertices at the gap still Moving (an estimate that a caller must
-/// flag, never a clean result), or, where no such balloon was kept, `error` is set and the mesh
-/// empty.
+/// that leaks out of its target is first sealed: the balloon from before the leak inflates again
+/// with its vertices at the gap stopped (`stats.leak_seals`, a few times at most; a caller must
+/// flag the result, the surface at a seal is on no wall). A leak that cannot be sealed ends at
+/// the leak bound with `stats.leaked`: the mesh is the balloon from before the leak began, its
+/// vertices at the gap still Moving (flagged likewise), or, where no such balloon was kept,
+/// `error` is set and the mesh empty.
 /// @throws std::invalid_argument if `seed_mm` lies outside the volume, or for options out of range
 ///         (h·μ > 0.5 vox, h·λ ∉ [0, 1], non-positive edge length).
 BalloonResult inflate_balloon(const volume::Volume& smoothed, const Vec3f& seed_mm,

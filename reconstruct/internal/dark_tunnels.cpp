@@ -89,19 +89,19 @@ float max_image(const volume::Volume& chi, const volume::Volume& image,
 
 }  // namespace
 
-int fill_dark_tunnels(volume::Volume& chi, float iso, float inside_value,
-                      const volume::Volume& image, float dark_below) {
-  int filled = 0;
+std::vector<FilledCell> fill_dark_tunnels(volume::Volume& chi, float iso, float inside_value,
+                                          const volume::Volume& image, float dark_below) {
+  std::vector<FilledCell> filled;
   const auto [lo, hi] = inside_box(chi, iso);
   for (int axis = 0; axis < 3; ++axis)
     for (int s = lo[axis]; s <= hi[axis]; ++s)
       for (const auto& hole : slice_holes(Slice{chi, axis, s, lo, hi}, iso)) {
         if (max_image(chi, image, hole) >= dark_below) continue;
         for (const Vec3i& c : hole) {
-          float& x = chi.f32()[chi.linear_index(c.x(), c.y(), c.z())];
-          x = std::max(x, inside_value);
+          const std::size_t at = chi.linear_index(c.x(), c.y(), c.z());
+          filled.push_back({at, chi.f32()[at]});  // (outside: below iso < inside_value)
+          chi.f32()[at] = inside_value;
         }
-        filled += static_cast<int>(hole.size());
       }
   return filled;
 }
@@ -109,18 +109,23 @@ int fill_dark_tunnels(volume::Volume& chi, float iso, float inside_value,
 bool close_dark_tunnels(SurfaceResult& surface, const Vec3f& seed_mm, const volume::Volume& image,
                         float dark_below) {
   if (surface.topology.genus <= 0 || surface.indicator.empty()) return false;
-  volume::Volume chi = surface.indicator;
+  volume::Volume& chi = surface.indicator;
   const float at_seed = volume::sample_mm(chi, seed_mm);
   if (!(at_seed > surface.iso)) return false;
   const float inside_value = 0.5f * (surface.iso + at_seed);
-  if (fill_dark_tunnels(chi, surface.iso, inside_value, image, dark_below) == 0) return false;
+  // χ is filled in place and given back unless the genus fell (no copy of the grid per volume).
+  const std::vector<FilledCell> filled =
+      fill_dark_tunnels(chi, surface.iso, inside_value, image, dark_below);
+  if (filled.empty()) return false;
   bool enclosed = false;
   Mesh mesh = mesh::component_enclosing(marching_cubes(chi, surface.iso), seed_mm, &enclosed);
   const Topology topology = analyze_topology(mesh);
-  if (!enclosed || topology.genus >= surface.topology.genus || !topology.watertight) return false;
+  if (!enclosed || topology.genus >= surface.topology.genus || !topology.watertight) {
+    for (const FilledCell& cell : filled) chi.f32()[cell.index] = cell.was;
+    return false;
+  }
   surface.mesh = std::move(mesh);
   surface.topology = topology;
-  surface.indicator = std::move(chi);
   return true;
 }
 

@@ -405,7 +405,7 @@ std::string BalloonEvolution::leak_message() const {
 
 void BalloonEvolution::take_result(Mesh& mesh, std::vector<StopReason>& stop) {
   if (rolled_back()) {
-    mesh = before_leak_->mesh;
+    mesh = std::move(before_leak_->mesh);  // (the evolution has ended)
     stop.clear();
     for (const auto& s : before_leak_->states) stop.push_back(s.reason);
     stats_.leak_rollback_iteration = before_leak_->iteration;

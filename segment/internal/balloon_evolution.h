@@ -54,7 +54,7 @@ class BalloonEvolution {
   /// The leak bound ended it, and the balloon as it was before the leak began is kept: take_result
   /// gives that one (stats.leak_rollback_iteration says from when).
   bool rolled_back() const { return stats_.leaked && before_leak_.has_value(); }
-  /// The balloon and its stop reasons (counted into stats.stop_counts).
+  /// The balloon and its stop reasons (counted into stats.stop_counts); once, at the end.
   void take_result(Mesh& mesh, std::vector<StopReason>& stop);
 
   /// The balloon at the remeshing pass with the fewest moving vertices since their number fell a

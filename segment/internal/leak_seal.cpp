@@ -79,11 +79,12 @@ std::vector<std::uint32_t> moving_vertices(const BalloonEvolution::Snapshot& bef
 
 // New leaked surface credited to each vertex of the kept balloon (only moving ones get any).
 std::vector<int> credit_new_surface(const BalloonEvolution::Snapshot& before,
+                                    const std::vector<std::uint32_t>& moving_ids,
                                     const std::vector<Vec3f>& leaked_mm, float vox_mm) {
   std::vector<std::uint32_t> all(before.mesh.vertices.size());
   std::iota(all.begin(), all.end(), 0u);
   const PointHash kept(before.mesh.vertices, std::move(all), 2.0f * vox_mm);
-  const PointHash moving(before.mesh.vertices, moving_vertices(before), 4.0f * vox_mm);
+  const PointHash moving(before.mesh.vertices, moving_ids, 4.0f * vox_mm);
   std::vector<int> credit(before.mesh.vertices.size(), 0);
   for (const Vec3f& p : leaked_mm) {
     if (kept.nearest(p, kNewSurfaceVox * vox_mm) != kInvalidIndex) continue;
@@ -117,10 +118,11 @@ std::vector<std::uint32_t> moving_clusters(const BalloonEvolution::Snapshot& bef
 
 std::optional<LeakSeal> seal_leak(const BalloonEvolution::Snapshot& before,
                                   const std::vector<Vec3f>& leaked_mm, float vox_mm) {
-  const std::vector<int> credit = credit_new_surface(before, leaked_mm, vox_mm);
+  const std::vector<std::uint32_t> moving = moving_vertices(before);
+  const std::vector<int> credit = credit_new_surface(before, moving, leaked_mm, vox_mm);
   const std::vector<std::uint32_t> cluster = moving_clusters(before);
   std::unordered_map<std::uint32_t, std::pair<int, int>> grown;  // root: credit, size
-  for (const std::uint32_t v : moving_vertices(before)) {
+  for (const std::uint32_t v : moving) {
     grown[cluster[v]].first += credit[v];
     ++grown[cluster[v]].second;
   }

@@ -64,7 +64,7 @@ TEST(DarkTunnels, ATunnelRoundABrightNeedleStays) {
 
 TEST(DarkTunnels, CountsTheCellsItFills) {
   Pierced p = pierced_ball(20.0f);
-  const int filled = fill_dark_tunnels(p.chi, 0.5f, 1.0f, p.image, 60.0f);
+  const int filled = static_cast<int>(fill_dark_tunnels(p.chi, 0.5f, 1.0f, p.image, 60.0f).size());
   // The tunnel's cells inside the ball, seen from the z slices (and from x and y, where the
   // ball's cross-section encloses them): at least its volume once.
   EXPECT_GT(filled, 300);
