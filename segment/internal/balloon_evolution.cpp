@@ -66,13 +66,17 @@ BalloonEvolution::BalloonEvolution(const volume::Volume& smoothed, const ImageSa
   begin();
 }
 
-// S^0 in the flat arrays, every vertex moved: normals, and its band marked in A_t.
+// S^0 in the flat arrays, every moving vertex moved: normals, and its band marked in A_t.
+// A start vertex that is already stopped (a warm or sealed start) must not count as moved:
+// compute_normals leaves a face to its lowest moved vertex, and a stopped one never computes it,
+// so an active neighbour would read that face's normal unset (run-to-run differing results).
 void BalloonEvolution::begin() {
   extract(bm_, a_);
   start_vertices_ = a_.pos.size();
-  moved_.assign(a_.pos.size(), kMoved | kMarks);
   all_active();
-  compute_normals();  // (every vertex starts as moved)
+  moved_.assign(a_.pos.size(), 0);
+  for (const std::uint32_t v : active_) moved_[v] = kMoved | kMarks;
+  compute_normals();
   mark_front();
 }
 
