@@ -136,11 +136,13 @@ FftPlanStats fft_plan_stats() {
   return cache().stats;
 }
 
+// Through the aligned operator new rather than fftwf_malloc: sonomeshd's replacement puts large
+// blocks on huge pages (daemon/huge_pages.cpp). 64 bytes satisfy FFTW's SIMD alignment, as its
+// own planning arrays have it.
 FftBuffer::FftBuffer(std::size_t floats) : size_(floats) {
-  data_ = fftwf_alloc_real(floats);
-  if (!data_) throw std::bad_alloc();
+  data_ = static_cast<float*>(::operator new(floats * sizeof(float), kFftAlignment));
 }
-FftBuffer::~FftBuffer() { fftwf_free(data_); }
+FftBuffer::~FftBuffer() { ::operator delete(data_, kFftAlignment); }
 
 void fft_forward(const std::array<int, 3>& dims, float* in, std::complex<float>* out, int threads,
                  bool measure) {

@@ -7,6 +7,7 @@
 #include <array>
 #include <complex>
 #include <cstddef>
+#include <new>
 #include <string>
 
 namespace sonomesh::reconstruct::internal {
@@ -33,7 +34,9 @@ std::string fft_wisdom_path();
 /// Imports fft_wisdom_path() now (under the planner lock); false if there is none or it is bad.
 bool fft_import_wisdom();
 
-/// FFTW-aligned float buffer (fftwf_malloc), freed on destruction.
+inline constexpr std::align_val_t kFftAlignment{64};
+
+/// FFTW-aligned float buffer, freed on destruction.
 class FftBuffer {
  public:
   explicit FftBuffer(std::size_t floats);
