@@ -22,7 +22,11 @@ void FileSink::write(const ProcessedVolume& volume, nlohmann::json& line) {
   if (auto error = internal::write_mesh_ply(volume.mesh, out_ / mesh_rel)) {
     throw std::runtime_error(*error);
   }
-  publish_copy_atomically(out_ / mesh_rel, out_ / "latest.ply");
+  const std::pair<std::uint64_t, std::uint64_t> id{volume.epoch, volume.sequence};
+  if (!latest_ || id > *latest_) {
+    publish_copy_atomically(out_ / mesh_rel, out_ / "latest.ply");
+    latest_ = id;
+  }
   line["latency_ms"] =
       std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - volume.received)
           .count();

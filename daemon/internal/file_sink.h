@@ -3,9 +3,12 @@
 /// @brief The files under OUT: meshes/SEQ.ply, reports/SEQ.json and latest.ply, each written
 /// whole or not at all (outputs.h), the oldest pruned beyond `keep_meshes`.
 
+#include <cstdint>
 #include <deque>
 #include <filesystem>
+#include <optional>
 #include <string>
+#include <utility>
 
 #include "daemon/internal/output_sink.h"
 #include "daemon/internal/run_config.h"
@@ -26,6 +29,8 @@ class FileSink : public OutputSink {
   std::filesystem::path out_;
   const SharedConfig& config_;
   std::deque<std::string> written_stems_;  // oldest first; writer thread only
+  // (epoch, sequence) of the volume latest.ply holds: a lane's older volume may finish after it.
+  std::optional<std::pair<std::uint64_t, std::uint64_t>> latest_;
 };
 
 }  // namespace sonomesh::daemon

@@ -3,7 +3,9 @@
 #include <spdlog/spdlog.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <thread>
+#include <vector>
 
 #include "daemon/internal/atomic_file.h"
 #include "daemon/internal/file_sink.h"
@@ -115,12 +117,13 @@ void LiveRunner::reload(const RunConfig& next) {
   keep(applied.http_address, previous.http_address);
   keep(applied.record_path, previous.record_path);
   keep(applied.igtl_listen, previous.igtl_listen);
+  keep(applied.lanes, previous.lanes);
   // The labels follow the running OpenIGTLink server (run_command.cpp), not the file's.
   applied.pipeline.want_labels = previous.pipeline.want_labels;
   if (restart_needed) {
     spdlog::warn(
-        "config reload: source, out, http, igtl_listen and record_path changes need a "
-        "restart; keeping the running ones");
+        "config reload: source, out, http, igtl_listen, record_path and lanes changes need "
+        "a restart; keeping the running ones");
   }
   config_.update([&](RunConfig& c) { c = applied; });
   queue_->set_capacity(applied.queue_capacity);
@@ -144,17 +147,25 @@ std::optional<std::string> LiveRunner::set_seed(const std::array<float, 3>& seed
 
 int LiveRunner::run() {
   const RunConfig config = config_.snapshot();
+  // By default a live stream gets a lane per core (two at most): it drops what one lane cannot
+  // keep up with. A replay keeps one, so each volume warm-starts from the one before it.
+  const int cores = std::clamp(static_cast<int>(std::thread::hardware_concurrency()), 1, 2);
+  const int lanes = config.lanes > 0 ? static_cast<int>(config.lanes) : live_ ? cores : 1;
   event("started", {{"source", config.source},
                     {"live", live_},
                     {"queue_capacity", config.queue_capacity},
+                    {"lanes", lanes},
                     {"pid", static_cast<long long>(::getpid())}});
   if (auto described = acquisition_->describe_source()) {
     event("source_opened", {{"source", *described}});
   }
   std::thread writer([this] { writer_->run(); });
-  std::thread worker([this] { worker_->run(); });
-  acquisition_->run();  // on the calling thread
-  worker.join();        // the worker closes the result queue when its input is drained
+  std::vector<std::thread> workers;
+  for (int lane = 0; lane < lanes; ++lane)
+    workers.emplace_back([this, lane, lanes] { worker_->run(lane, lanes); });
+  acquisition_->run();                      // on the calling thread
+  for (std::thread& w : workers) w.join();  // each returns when the input queue is drained
+  results_->close();
   writer.join();
   acquisition_->close_source();
   for (const auto& sink : recorder_->sinks()) sink->stop();

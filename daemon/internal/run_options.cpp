@@ -122,6 +122,8 @@ std::vector<OptionSpec> daemon_options() {
                }});
   o.push_back(num("daemon", "queue_capacity", "volumes", closed(1, 64),
                   "volumes waiting for the worker", REF(queue_capacity)));
+  o.push_back(num("daemon", "lanes", "volumes", closed(0, 2),
+                  "segmented at once; 0: two for a live source on two cores", REF(lanes)));
   o.push_back(choice(
       "daemon", "log_level", {"trace", "debug", "info", "warn", "error", "critical", "off"},
       "log level", [](RunConfig& c, const std::string& s) { c.log_level = s; },

@@ -3,6 +3,7 @@
 #include <spdlog/spdlog.h>
 
 #include <cmath>
+#include <thread>
 
 #include "daemon/internal/outputs.h"
 
@@ -13,6 +14,7 @@ using Clock = std::chrono::steady_clock;
 namespace {
 
 constexpr auto kPollTimeout = std::chrono::milliseconds(200);
+constexpr auto kColdWait = std::chrono::milliseconds(2);
 
 double ms_between(Clock::time_point a, Clock::time_point b) {
   return std::chrono::duration<double, std::milli>(b - a).count();
@@ -56,27 +58,52 @@ bool Worker::override_waiting() {
   return override_mm_.has_value();
 }
 
-void Worker::run() {
+void Worker::run(int lane, int lanes) {
+  PipelineBuffers buffers;  // smoothing buffers, reused from volume to volume
   while (true) {
-    if (turn_hook_) turn_hook_();  // web: the systemd watchdog, from this loop
+    if (turn_hook_ && lane == 0) turn_hook_();  // web: the systemd watchdog, from this loop
     auto item = in_.pop(kPollTimeout);
     context_.stats.set_queue_depth(in_.size(), in_.capacity());
     if (!item) {
       if (in_.closed() && in_.size() == 0) break;
       continue;
     }
+    const bool cold = claim_cold_start();
     try {
-      process(std::move(*item));
+      process(std::move(*item), buffers, lanes);
     } catch (const std::exception& e) {
       context_.fatal(e.what());  // the journal cannot be written: nothing sensible can continue
     }
+    if (cold) {
+      std::lock_guard lock(state_mutex_);
+      cold_lane_busy_ = false;
+    }
   }
-  out_.close();
+}
+
+// With nothing warm to start from, one lane at a time starts cold; another with a volume in
+// hand waits for its result (two cold starts at once took 700 ms each at 20 volumes/s, as each
+// halved the other's cores). Returns whether this lane took the cold start.
+bool Worker::claim_cold_start() {
+  for (;;) {
+    {
+      std::lock_guard lock(state_mutex_);
+      if (previous_) return false;
+      if (!cold_lane_busy_) return cold_lane_busy_ = true;
+    }
+    std::this_thread::sleep_for(kColdWait);
+  }
 }
 
 void Worker::fail(const QueuedVolume& item, const std::string& reason, nlohmann::json line) {
   const std::uint64_t seq = item.raw.sequence;
-  previous_.reset();  // the next volume starts cold
+  {
+    std::lock_guard lock(state_mutex_);
+    if (!state_sequence_ || seq >= *state_sequence_) {
+      previous_.reset();  // the next volume starts cold
+      state_sequence_ = seq;
+    }
+  }
   line["reason"] = reason;
   line["latency_ms"] = ms_between(item.received, Clock::now());
   context_.recorder.record(seq, JournalStatus::Failed, std::move(line), item.epoch);
@@ -127,8 +154,27 @@ std::optional<SeedCandidate> Worker::pick_seed(const volume::Volume& input, cons
   return choice.chosen;
 }
 
-void Worker::process(QueuedVolume item) {
-  const RunConfig config = context_.config.snapshot();
+// The seed, the start and the configuration, from the state the newest result left. A second
+// lane gets one core of its own (a lane's parallel loops gained nothing over one thread at
+// 20 volumes/s: docs/results.md).
+std::optional<Worker::Start> Worker::begin_volume(const volume::Volume& input, int lanes,
+                                                  nlohmann::json& line) {
+  Start start{.config = context_.config.snapshot(), .seed = {}, .decision = {}, .warm = {}};
+  if (lanes > 1) {
+    if (start.config.pipeline.balloon.threads == 0) start.config.pipeline.balloon.threads = 1;
+    start.config.pipeline.poisson.fft_threads = 1;
+  }
+  std::lock_guard lock(state_mutex_);
+  const std::optional<SeedCandidate> seed = pick_seed(input, start.config, line);
+  if (!seed) return std::nullopt;
+  start.seed = *seed;
+  start.decision = choose_start(input, *seed);
+  if (seed_overridden_) last_centroid_mm_.reset();  // a new object: no motion to carry
+  start.warm = take_warm_start(input, start.decision);
+  return start;
+}
+
+void Worker::process(QueuedVolume item, PipelineBuffers& buffers, int lanes) {
   const std::uint64_t seq = item.raw.sequence;
   const double queue_wait_ms = ms_between(item.received, Clock::now());
   volume::Volume input;
@@ -140,26 +186,22 @@ void Worker::process(QueuedVolume item) {
   item.raw.voxels = {};  // the Volume holds its own copy
 
   nlohmann::json line = nlohmann::json::object();
-  const std::optional<SeedCandidate> seed = pick_seed(input, config, line);
-  if (!seed) {
+  const std::optional<Start> start = begin_volume(input, lanes, line);
+  if (!start) {
     const std::string why = line["seeds_refused"].back()["why"].get<std::string>();
     return fail(item, "no usable seed: " + why, std::move(line));
   }
-  const Vec3f seed_mm(seed->mm[0], seed->mm[1], seed->mm[2]);
-  const StartDecision start = choose_start(input, *seed);
-  if (seed_overridden_) last_centroid_mm_.reset();  // a new object: no motion to carry
-  const std::optional<WarmStart> warm = take_warm_start(input, start);
+  const Vec3f seed_mm(start->seed.mm[0], start->seed.mm[1], start->seed.mm[2]);
   PipelineResult result;
   try {
-    result =
-        run_pipeline(input, seed_mm, config.pipeline, buffers_, warm ? &*warm : nullptr, abort_);
+    result = run_pipeline(input, seed_mm, start->config.pipeline, buffers,
+                          start->warm ? &*start->warm : nullptr, abort_);
   } catch (const std::exception& e) {
     return fail(item, std::string("pipeline: ") + e.what(), std::move(line));
   }
-  if (!start.warm) result.start_reason = start.reason;  // (a refused warm start says why itself)
-  since_refused_ = start.warm && !result.warm_start ? 0 : std::min(since_refused_, 1 << 29) + 1;
+  if (!start->decision.warm) result.start_reason = start->decision.reason;
   line["start"] = result.warm_start ? "warm" : "cold";
-  line["start_reason"] = result.warm_start ? start.reason : result.start_reason;
+  line["start_reason"] = result.warm_start ? start->decision.reason : result.start_reason;
   nlohmann::json& timings = line["timings_ms"];
   timings["queue_wait"] = queue_wait_ms;
   for (const auto& [stage, ms] : result.timings.stages()) timings[stage] = ms;
@@ -169,13 +211,7 @@ void Worker::process(QueuedVolume item) {
     return fail(item, aborted ? "shutdown: aborted by a second signal" : result.error,
                 std::move(line));
   }
-  std::optional<SeedMm> deepest;
-  if (result.deepest_interior_mm) {
-    const Vec3f& d = *result.deepest_interior_mm;
-    deepest = SeedMm{d.x(), d.y(), d.z()};
-  }
-  seeds_.on_result(deepest, override_waiting());
-  flag_genus_change(*seed, result);
+  end_volume(seq, input, *start, result);
   describe_result(result, line);
   context_.stats.count_start(result.warm_start);
 
@@ -186,10 +222,9 @@ void Worker::process(QueuedVolume item) {
   v.received = item.received;
   v.report = report_json(result, "sequence " + std::to_string(seq), input, seed_mm);
   v.report["sequence"] = seq;
-  v.report["seed_origin"] = to_string(seed->origin);
+  v.report["seed_origin"] = to_string(start->seed.origin);
   v.report["queue_wait_ms"] = queue_wait_ms;
-  if (result.warm_start) v.report["start_reason"] = start.reason;
-  keep_for_warm_start(input, result);
+  if (result.warm_start) v.report["start_reason"] = start->decision.reason;
   // The outputs are in the input's world frame (LPS mm, DESIGN.md "Geometry and files"): the
   // mesh mapped there, the labels given the input's direction (they share its grid and origin).
   v.mesh = internal::mesh_to_world(result.mesh, input);
@@ -202,32 +237,48 @@ void Worker::process(QueuedVolume item) {
   out_.push(std::move(out));
 }
 
-// The previous balloon, given up whatever the decision (kept again from this volume's result).
-// The inset: 3 voxels, plus how far the object moved last time (it may move as far again); at 2
-// voxels warm volumes drifted from the truth (docs/tuning.md).
+// A result older than the state's (the other lane's newer volume finished first) is still
+// checked against it for a genus change, but does not set it back.
+void Worker::end_volume(std::uint64_t sequence, const volume::Volume& input, const Start& start,
+                        PipelineResult& result) {
+  std::lock_guard lock(state_mutex_);
+  const bool newest = !state_sequence_ || sequence >= *state_sequence_;
+  const bool refused = start.decision.warm && !result.warm_start;
+  since_refused_ = refused ? 0 : std::min(since_refused_, 1 << 29) + 1;
+  flag_genus_change(start.seed, result, newest);
+  if (!newest) return;
+  state_sequence_ = sequence;
+  std::optional<SeedMm> deepest;
+  if (result.deepest_interior_mm) {
+    const Vec3f& d = *result.deepest_interior_mm;
+    deepest = SeedMm{d.x(), d.y(), d.z()};
+  }
+  seeds_.on_result(deepest, override_waiting());
+  keep_for_warm_start(input, result);
+}
+
+// The previous balloon, copied (another lane may start from it too); this volume's result
+// replaces it. The inset: 3 voxels, plus how far the object moved last time (it may move as far
+// again); at 2 voxels warm volumes drifted from the truth (docs/tuning.md).
 std::optional<WarmStart> Worker::take_warm_start(const volume::Volume& input,
                                                  const StartDecision& start) {
-  std::optional<WarmStart> warm;
-  if (start.warm) {
-    const float vox_mm = input.spacing_mm().minCoeff();
-    warm =
-        WarmStart{std::move(previous_->balloon), std::move(previous_->balloon_stop),
-                  (3.0f + previous_->motion_vox) * vox_mm, previous_->genus, previous_->level_stop};
-  }
-  previous_.reset();
-  return warm;
+  if (!start.warm || !previous_) return std::nullopt;
+  const float vox_mm = input.spacing_mm().minCoeff();
+  return WarmStart{previous_->balloon, previous_->balloon_stop,
+                   (3.0f + previous_->motion_vox) * vox_mm, previous_->genus,
+                   previous_->level_stop};
 }
 
 // A tracked object whose genus changed since the last result is flagged "genus changed": a needle
 // went in or came out, or one of the two results has the wrong topology (an extra handle is ok to
 // the verdict otherwise, docs/results.md). Either way a reader should look. Another seed is
 // another object.
-void Worker::flag_genus_change(const SeedCandidate& seed, PipelineResult& result) {
+void Worker::flag_genus_change(const SeedCandidate& seed, PipelineResult& result, bool newest) {
   if (seed.origin == SeedOrigin::Tracked && last_genus_ && *last_genus_ != result.topology.genus) {
     result.quality_ok = false;
     result.quality_reasons.emplace_back("genus changed");
   }
-  last_genus_ = result.topology.genus;
+  if (newest) last_genus_ = result.topology.genus;
 }
 
 // Cold unless the last result can start this one (seed_policy.h, decide_start).
@@ -250,7 +301,7 @@ StartDecision Worker::choose_start(const volume::Volume& input, const SeedCandid
 
 // The balloon (genus 0 by construction; the reconstructed surface may have a tunnel), where the
 // result's centre is, how large it is, and how much both changed since the result before.
-void Worker::keep_for_warm_start(const volume::Volume& input, PipelineResult& result) {
+void Worker::keep_for_warm_start(const volume::Volume& input, const PipelineResult& result) {
   if (result.balloon.vertices.empty() || result.mesh.vertices.empty()) return;
   Previous next;
   for (const Vec3f& p : result.mesh.vertices) next.centroid_mm += p;
@@ -272,8 +323,8 @@ void Worker::keep_for_warm_start(const volume::Volume& input, PipelineResult& re
   }
   last_centroid_mm_ = next.centroid_mm;
   last_volume_ml_ = next.volume_ml;
-  next.balloon = std::move(result.balloon);
-  next.balloon_stop = std::move(result.balloon_stop);
+  next.balloon = result.balloon;  // (the report still lists it)
+  next.balloon_stop = result.balloon_stop;
   previous_ = std::move(next);
 }
 
