@@ -46,6 +46,10 @@ struct PipelineConfig {
   /// (segment::reinflate): gives back what the reconstruction's smoothing takes from thin parts.
   bool reinflate = true;
   segment::ReinflateOptions reinflate_pass;
+  /// Beyond the paper (segment::fit_to_wall), after the reinflation: each vertex to where the
+  /// image averaged over the surface around it crosses half way to the wall.
+  bool wall_fit = true;
+  segment::WallFitOptions wall_fit_options;
   /// The second opinion (docs/stopping.md departure 9): a result the verdict calls suspect, or
   /// no result, is segmented again with the level stop at this fraction
   /// (segment::BalloonOptions::level_stop_fraction), and the better of the two is kept: the one

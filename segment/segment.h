@@ -216,6 +216,25 @@ BalloonResult reinflate(const volume::Volume& smoothed, const Mesh& surface,
                         const BalloonStats& first_pass, const BalloonOptions& options = {},
                         const ReinflateOptions& pass = {}, std::stop_token stop = {});
 
+/// Options of fit_to_wall.
+struct WallFitOptions {
+  float reach_vox = 2.5f;  // the profile along each vertex normal, either way
+  float step_vox = 0.25f;  // its sample spacing
+  int rings = 3;           // the profiles are averaged over the vertex's neighbours this often
+  float max_move_vox = 1.0f;
+  float min_rise_fraction = 0.25f;  // of (tissue_level - seed_level): less is no wall
+};
+
+/// Beyond the paper: each vertex of `surface` moves along its normal to where the image,
+/// averaged over the surface around it, crosses half way from its lowest level behind the vertex
+/// to its highest ahead. A single vertex's profile crosses on a speckle grain; the average over
+/// the rings crosses on the wall. Connectivity is kept. `first_pass` gives the levels that tell
+/// a wall from none. `threads` as BalloonOptions::threads.
+/// @throws std::invalid_argument for an empty volume or a triangle index out of range.
+Mesh fit_to_wall(const volume::Volume& smoothed, const Mesh& surface,
+                 const BalloonStats& first_pass, const WallFitOptions& options = {},
+                 int threads = 0);
+
 /// Convenience: smooths `image` with a Gaussian of `sigma_mm`, inflates.
 BalloonResult inflate_balloon(const volume::Volume& image, float sigma_mm, const Vec3f& seed_mm,
                               const BalloonOptions& options = {}, std::stop_token stop = {});

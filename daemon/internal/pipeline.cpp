@@ -207,19 +207,27 @@ std::string surface_stage(const volume::Volume& input, const volume::Volume& smo
   return {};
 }
 
-// Beyond the paper: the second balloon pass from the reconstruction back to the wall. It moves
-// vertices only, so the topology's counts stay; the enclosed volume is measured again. It needs
-// a closed manifold (its precondition): a surface that is not one is kept as reconstructed.
+// Beyond the paper: the second balloon pass from the reconstruction back to the wall, then the
+// wall fit (segment::fit_to_wall), which places each vertex where the image averaged over the
+// surface around it crosses half way to the wall: a balloon vertex stops on the first speckle
+// grain that reaches its stop level, so the pass alone ends short of the wall. Both move vertices
+// only, so the topology's counts stay; the enclosed volume is measured again. The pass needs a
+// closed manifold (its precondition): a surface that is not one is kept as reconstructed.
 void reinflate_stage(const PipelineBuffers& buffers, const PipelineConfig& config,
                      const std::stop_token& stop, PipelineResult& result) {
-  if (!config.reinflate || !result.topology.manifold) return;
+  if (!(config.reinflate || config.wall_fit) || !result.topology.manifold) return;
   const auto t = Clock::now();
-  segment::BalloonResult second =
-      segment::reinflate(buffers.smoothed, result.mesh, result.balloon_stats, config.balloon,
-                         config.reinflate_pass, stop);
+  if (config.reinflate) {
+    segment::BalloonResult second =
+        segment::reinflate(buffers.smoothed, result.mesh, result.balloon_stats, config.balloon,
+                           config.reinflate_pass, stop);
+    if (stop.stop_requested()) return;
+    result.mesh = std::move(second.mesh);
+  }
+  if (config.wall_fit)
+    result.mesh = segment::fit_to_wall(buffers.smoothed, result.mesh, result.balloon_stats,
+                                       config.wall_fit_options, config.balloon.threads);
   result.timings.reinflate_ms = ms_since(t);
-  if (stop.stop_requested()) return;
-  result.mesh = std::move(second.mesh);
   result.topology.volume_ml = reconstruct::enclosed_volume_ml(result.mesh);
   result.enclosed_volume_ml = result.topology.volume_ml;
 }

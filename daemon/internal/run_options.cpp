@@ -10,7 +10,6 @@
 #include "daemon/internal/run_config.h"
 
 namespace sonomesh::daemon {
-
 namespace {
 
 using reconstruct::DivergenceMode;
@@ -218,6 +217,8 @@ std::vector<OptionSpec> pipeline_options() {
                   REF(pipeline.reinflate_pass.max_move_vox)));
   o.push_back(num("pipeline", "reinflate_max_iterations", "iterations", closed(1, 10000),
                   "second pass length", REF(pipeline.reinflate_pass.max_iterations)));
+  o.push_back(flag("pipeline", "wall_fit", "vertices to the surface-averaged wall crossing",
+                   REF(pipeline.wall_fit)));
   o.push_back(flag("pipeline", "cell_from_voxel", "true: poisson.cell_mm = the finest spacing",
                    REF(pipeline.cell_from_voxel)));
   o.push_back(num("pipeline", "second_opinion_level_stop", "", closed(0, 0.99),
