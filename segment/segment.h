@@ -219,7 +219,7 @@ BalloonResult reinflate(const volume::Volume& smoothed, const Mesh& surface,
 /// Options of fit_to_wall.
 struct WallFitOptions {
   float reach_vox = 2.5f;  // the profile along each vertex normal, either way
-  float step_vox = 0.25f;  // its sample spacing
+  float step_vox = 0.5f;   // its sample spacing
   int rings = 3;           // the profiles are averaged over the vertex's neighbours this often
   float max_move_vox = 1.0f;
   float min_rise_fraction = 0.25f;  // of (tissue_level - seed_level): less is no wall

@@ -17,28 +17,25 @@ namespace {
 
 using namespace internal;
 
-// Vertex -> neighbouring vertices (CSR), from the triangles: each undirected edge once per end.
+// Vertex -> neighbouring vertices (CSR): the vertex after it in each of its triangles, which on
+// a closed manifold names every neighbour once (elsewhere a neighbour may be missed or repeated,
+// which an average shrugs off).
 struct Neighbours {
   std::vector<std::uint32_t> begin, list;
 
   explicit Neighbours(const Mesh& surface) {
     const std::size_t nv = surface.vertices.size();
-    std::vector<std::pair<std::uint32_t, std::uint32_t>> edges;
-    edges.reserve(6 * surface.triangles.size());
-    for (const auto& t : surface.triangles)
-      for (int i = 0; i < 3; ++i) {
-        const std::uint32_t a = t[i], b = t[(i + 1) % 3];
-        if (a >= nv || b >= nv) throw std::invalid_argument("fit_to_wall: index out of range");
-        edges.emplace_back(a, b);
-        edges.emplace_back(b, a);
-      }
-    std::sort(edges.begin(), edges.end());
-    edges.erase(std::unique(edges.begin(), edges.end()), edges.end());
     begin.assign(nv + 1, 0);
-    for (const auto& e : edges) ++begin[e.first + 1];
+    for (const auto& t : surface.triangles)
+      for (const std::uint32_t v : t) {
+        if (v >= nv) throw std::invalid_argument("fit_to_wall: triangle index out of range");
+        ++begin[v + 1];
+      }
     for (std::size_t v = 0; v < nv; ++v) begin[v + 1] += begin[v];
-    list.reserve(edges.size());
-    for (const auto& e : edges) list.push_back(e.second);
+    list.resize(begin[nv]);
+    std::vector<std::uint32_t> fill(begin.begin(), begin.end() - 1);
+    for (const auto& t : surface.triangles)
+      for (int i = 0; i < 3; ++i) list[fill[t[i]]++] = t[(i + 1) % 3];
   }
 };
 
