@@ -32,9 +32,14 @@ class ImageSampler {
   }
 
   float value(const Vec3f& p_mm) const {
-    const Corners c = corners(p_mm);
+    float f[3];
+    const float* p = img_ + cell(p_mm, f);
+    const float x1 = f[0], x0 = 1.0f - f[0], y1 = f[1], y0 = 1.0f - f[1];
+    const float z1 = f[2], z0 = 1.0f - f[2];
+    const float w[8] = {x0 * y0 * z0, x1 * y0 * z0, x0 * y1 * z0, x1 * y1 * z0,
+                        x0 * y0 * z1, x1 * y0 * z1, x0 * y1 * z1, x1 * y1 * z1};
     float v = 0.0f;
-    for (int i = 0; i < 8; ++i) v += c.w[i] * img_[c.idx[i]];
+    for (int i = 0; i < 8; ++i) v += w[i] * p[corner_offset_[i]];  // corners()'s weights and order
     return v;
   }
 
@@ -90,17 +95,28 @@ class ImageSampler {
 
   // The eight corners as one base index plus fixed offsets (set up once per sampler): the
   // per-axis index arithmetic is done once per sample, not once per corner.
-  Corners corners(const Vec3f& p_mm) const {
-    Corners c;
+  // The cell holding p (clamped into the volume): its lower corner's index, and p's fraction
+  // across it per axis in `f`.
+  std::size_t cell(const Vec3f& p_mm, float f[3], int i0[3] = nullptr) const {
     std::size_t base = 0;
-    float f[3];
     for (int a = 0; a < 3; ++a) {
       const float u = std::clamp((p_mm[a] - origin_mm_[a]) * inv_spacing_[a], 0.0f, max_index_[a]);
-      const int i0 = std::min(static_cast<int>(u), last_cell_[a]);
-      f[a] = std::min(u - static_cast<float>(i0), 1.0f);
-      base += static_cast<std::size_t>(i0) * stride_[a];
-      c.diff[a][0] = diff(i0, a);
-      c.diff[a][1] = diff(std::min(i0 + 1, dims_[a] - 1), a);
+      const int i = std::min(static_cast<int>(u), last_cell_[a]);
+      f[a] = std::min(u - static_cast<float>(i), 1.0f);
+      base += static_cast<std::size_t>(i) * stride_[a];
+      if (i0) i0[a] = i;
+    }
+    return base;
+  }
+
+  Corners corners(const Vec3f& p_mm) const {
+    Corners c;
+    float f[3];
+    int i0[3];
+    const std::size_t base = cell(p_mm, f, i0);
+    for (int a = 0; a < 3; ++a) {
+      c.diff[a][0] = diff(i0[a], a);
+      c.diff[a][1] = diff(std::min(i0[a] + 1, dims_[a] - 1), a);
     }
     const float x1 = f[0], x0 = 1.0f - f[0], y1 = f[1], y0 = 1.0f - f[1];
     const float z1 = f[2], z0 = 1.0f - f[2];
