@@ -83,9 +83,9 @@ TEST(RealDataPipeline, EchoTomaatIsSealedAtItsDropoutAndPlausible) {
   const PipelineResult r = run_pipeline(input, seed, config);
   EXPECT_GT(r.smooth_sigma_mm, 1.5f * input.spacing_mm().minCoeff());
   ASSERT_TRUE(r.ok) << r.error;
-  // Whether the last of its 3-6 leaks finds a neck to seal varies from run to run on this volume
-  // (the balloon is not deterministic here, docs/stopping.md item 10); when it does not, the
-  // balloon from before that leak stands, and the bound is said.
+  // Where the last leak finds no neck to seal, the balloon from before it stands and the bound
+  // is said (docs/stopping.md item 10: since the start mesh's face normals are set, this volume
+  // gives the same five seals on every run).
   if (r.balloon_stats.leaked) {
     EXPECT_NE(reasons(r).find("leak bound"), std::string::npos) << reasons(r);
   }
