@@ -230,7 +230,8 @@ struct WallFitOptions {
 /// to its highest ahead. A single vertex's profile crosses on a speckle grain; the average over
 /// the rings crosses on the wall. Connectivity is kept. `first_pass` gives the levels that tell
 /// a wall from none. `threads` as BalloonOptions::threads.
-/// @throws std::invalid_argument for an empty volume or a triangle index out of range.
+/// @throws std::invalid_argument for an empty volume, a triangle index out of range, a
+///         `first_pass` without seed statistics or options out of range.
 Mesh fit_to_wall(const volume::Volume& smoothed, const Mesh& surface,
                  const BalloonStats& first_pass, const WallFitOptions& options = {},
                  int threads = 0);

@@ -93,10 +93,8 @@ class ImageSampler {
     return {-stride, stride, half_inv_spacing_[a]};
   }
 
-  // The eight corners as one base index plus fixed offsets (set up once per sampler): the
-  // per-axis index arithmetic is done once per sample, not once per corner.
   // The cell holding p (clamped into the volume): its lower corner's index, and p's fraction
-  // across it per axis in `f`.
+  // across it per axis in `f` (the corner's index per axis in `i0`, when given).
   std::size_t cell(const Vec3f& p_mm, float f[3], int i0[3] = nullptr) const {
     std::size_t base = 0;
     for (int a = 0; a < 3; ++a) {
@@ -109,6 +107,8 @@ class ImageSampler {
     return base;
   }
 
+  // The eight corners as one base index plus fixed offsets (set up once per sampler): the
+  // per-axis index arithmetic is done once per sample, not once per corner.
   Corners corners(const Vec3f& p_mm) const {
     Corners c;
     float f[3];
