@@ -5,6 +5,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <cmath>
 #include <string>
 #include <tuple>
 
@@ -177,6 +178,30 @@ TEST(EchoPipeline, CoarseRetryGetsTheGenusRightAtContrastPointThree) {
       EXPECT_NE(std::find(r.quality_reasons.begin(), r.quality_reasons.end(), "coarse pre-filter"),
                 r.quality_reasons.end());
     }
+}
+
+// The wall fit (docs/stopping.md item 13) moves the pipeline's surface from where the speckle
+// stopped it to the wall: on the 64³ echo lv at contrast 0.5 (measured 2026-12-04: Dice 0.917 →
+// 0.935, volume −8.5 → −1.2 %) the result is closer to the truth in Dice and in volume, and the
+// genus is the same.
+TEST(EchoPipeline, WallFitPlacesTheSurfaceOnTheWall) {
+  const sim::Phantom lv = echo_phantom("lv", 0.5f);
+  double truth_voxels = 0;
+  const volume::Vec3i& n = lv.truth.dims();
+  for (int k = 0; k < n.z(); ++k)
+    for (int j = 0; j < n.y(); ++j)
+      for (int i = 0; i < n.x(); ++i) truth_voxels += lv.truth.value(i, j, k) > 0.5f ? 1 : 0;
+  const double truth_ml = truth_voxels * lv.truth.spacing_mm().prod() * 1e-3;
+  PipelineConfig config;
+  config.wall_fit = false;
+  const PipelineResult off = run_pipeline(lv.image, lv.seed_mm, config);
+  config.wall_fit = true;
+  const PipelineResult on = run_pipeline(lv.image, lv.seed_mm, config);
+  ASSERT_TRUE(off.ok && off.labels && on.ok && on.labels) << off.error << on.error;
+  EXPECT_EQ(on.topology.genus, off.topology.genus);
+  EXPECT_GE(internal::dice(*on.labels, lv.truth), internal::dice(*off.labels, lv.truth) + 0.01);
+  EXPECT_LT(std::abs(on.enclosed_volume_ml / truth_ml - 1.0),
+            std::abs(off.enclosed_volume_ml / truth_ml - 1.0) - 0.03);
 }
 
 }  // namespace
