@@ -6,6 +6,7 @@
 
 #include "mesh/mesh.h"
 #include "mesh/parallel.h"
+#include "segment/internal/corner_table.h"
 #include "segment/internal/image_sampler.h"
 #include "segment/internal/step.h"
 #include "segment/internal/stop_rules.h"
@@ -15,30 +16,14 @@ namespace {
 
 using namespace internal;
 
-// Vertex -> incident faces (CSR). The pass needs no halfedges: the umbrella's centroid and the
-// normal of equation (2) are sums over the incident faces, and the connectivity never changes.
-struct VertexFaces {
-  std::vector<std::uint32_t> begin, faces;
-
-  explicit VertexFaces(const Mesh& surface) {
-    const std::size_t nv = surface.vertices.size(), nf = surface.triangles.size();
-    begin.assign(nv + 1, 0);
-    faces.resize(3 * nf);
-    for (const auto& t : surface.triangles)
-      for (const std::uint32_t v : t) {
-        if (v >= nv) throw std::invalid_argument("reinflate: triangle index out of range");
-        ++begin[v + 1];
-      }
-    for (std::size_t v = 0; v < nv; ++v) begin[v + 1] += begin[v];
-    std::vector<std::uint32_t> fill(begin.begin(), begin.end() - 1);
-    for (std::uint32_t f = 0; f < nf; ++f)
-      for (const std::uint32_t v : surface.triangles[f]) faces[fill[v]++] = f;
-  }
-  std::uint32_t degree(std::uint32_t v) const { return begin[v + 1] - begin[v]; }
-};
+// Vertex -> incident faces. The pass needs no halfedges: the umbrella's centroid and the normal
+// of equation (2) are sums over the incident faces, and the connectivity never changes.
+CornerTable vertex_faces(const Mesh& surface) {
+  return CornerTable(surface, "reinflate", [](std::uint32_t f, int) { return f; });
+}
 
 // The pass's precondition: a closed manifold whose every vertex has faces (an umbrella).
-void check_closed(const Mesh& surface, const VertexFaces& vf) {
+void check_closed(const Mesh& surface, const CornerTable& vf) {
   if (!mesh::is_closed_manifold(surface))
     throw std::invalid_argument("reinflate: the surface is not closed and manifold");
   for (std::uint32_t v = 0; v < surface.vertices.size(); ++v)
@@ -68,7 +53,7 @@ class Reinflation {
   WallSnap snap_;
   BalloonStats& stats_;
   mesh::Workers workers_;
-  VertexFaces vf_;
+  CornerTable vf_;
   std::vector<Vec3f> pos_, next_pos_;
   std::vector<float> cost_of_, floor_of_, path_of_;
   std::vector<StopReason> reason_;
@@ -87,7 +72,7 @@ Reinflation::Reinflation(const volume::Volume& smoothed, const Mesh& surface,
       first_pass_(first_pass),
       stats_(stats),
       workers_(options.threads),
-      vf_(surface),
+      vf_(vertex_faces(surface)),
       pos_(surface.vertices),
       next_pos_(surface.vertices) {
   check_closed(surface, vf_);
@@ -142,7 +127,7 @@ void Reinflation::advance_vertex(std::uint32_t v) {
   const Vec3f p = pos_[v];
   Vec3f n = Vec3f::Zero(), centroid = Vec3f::Zero();
   for (std::uint32_t i = vf_.begin[v]; i < vf_.begin[v + 1]; ++i) {
-    const auto& t = surface_.triangles[vf_.faces[i]];
+    const auto& t = surface_.triangles[vf_.list[i]];
     n += unit_face_normal(pos_, t);  // equation (2)
     for (const std::uint32_t q : t) centroid += pos_[q];
   }

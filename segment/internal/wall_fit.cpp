@@ -9,6 +9,7 @@
 #include <vector>
 
 #include "mesh/parallel.h"
+#include "segment/internal/corner_table.h"
 #include "segment/internal/image_sampler.h"
 #include "segment/internal/step.h"
 
@@ -17,27 +18,13 @@ namespace {
 
 using namespace internal;
 
-// Vertex -> neighbouring vertices (CSR): the vertex after it in each of its triangles, which on
-// a closed manifold names every neighbour once (elsewhere a neighbour may be missed or repeated,
+// Vertex -> neighbouring vertices: the vertex after it in each of its triangles, which on a
+// closed manifold names every neighbour once (elsewhere a neighbour may be missed or repeated,
 // which an average shrugs off).
-struct Neighbours {
-  std::vector<std::uint32_t> begin, list;
-
-  explicit Neighbours(const Mesh& surface) {
-    const std::size_t nv = surface.vertices.size();
-    begin.assign(nv + 1, 0);
-    for (const auto& t : surface.triangles)
-      for (const std::uint32_t v : t) {
-        if (v >= nv) throw std::invalid_argument("fit_to_wall: triangle index out of range");
-        ++begin[v + 1];
-      }
-    for (std::size_t v = 0; v < nv; ++v) begin[v + 1] += begin[v];
-    list.resize(begin[nv]);
-    std::vector<std::uint32_t> fill(begin.begin(), begin.end() - 1);
-    for (const auto& t : surface.triangles)
-      for (int i = 0; i < 3; ++i) list[fill[t[i]]++] = t[(i + 1) % 3];
-  }
-};
+CornerTable neighbours(const Mesh& surface) {
+  return CornerTable(surface, "fit_to_wall",
+                     [&](std::uint32_t f, int k) { return surface.triangles[f][(k + 1) % 3]; });
+}
 
 std::vector<Vec3f> vertex_normals(const Mesh& surface) {
   std::vector<Vec3f> n(surface.vertices.size(), Vec3f::Zero());
@@ -52,7 +39,7 @@ std::vector<Vec3f> vertex_normals(const Mesh& surface) {
 }
 
 // values[v * width + j] replaced by their mean over v and its neighbours, `rounds` times.
-void average_over_rings(std::vector<float>& values, int width, const Neighbours& nb, int rounds,
+void average_over_rings(std::vector<float>& values, int width, const CornerTable& nb, int rounds,
                         mesh::Workers& workers) {
   std::vector<float> next(values.size());
   const std::size_t nv = nb.begin.size() - 1;
@@ -132,7 +119,7 @@ Mesh fit_to_wall(const volume::Volume& smoothed_in, const Mesh& surface,
   const float vox_mm = smoothed.spacing_mm().minCoeff();
   const int width = 2 * static_cast<int>(std::lround(options.reach_vox / options.step_vox)) + 1;
   const float step_mm = options.step_vox * vox_mm;
-  const Neighbours nb(surface);
+  const CornerTable nb = neighbours(surface);
   const std::vector<Vec3f> normal = vertex_normals(surface);
   mesh::Workers workers(threads);
   std::vector<float> profiles =
