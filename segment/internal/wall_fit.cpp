@@ -26,12 +26,13 @@ CornerTable neighbours(const Mesh& surface) {
                      [&](std::uint32_t f, int k) { return surface.triangles[f][(k + 1) % 3]; });
 }
 
+// Equation (2)'s normals, as the balloon passes take them; zero where every triangle around a
+// vertex is degenerate (its profile then samples the vertex alone).
 std::vector<Vec3f> vertex_normals(const Mesh& surface) {
   std::vector<Vec3f> n(surface.vertices.size(), Vec3f::Zero());
   for (const auto& t : surface.triangles) {
-    const Vec3f& a = surface.vertices[t[0]];
-    const Vec3f face = (surface.vertices[t[1]] - a).cross(surface.vertices[t[2]] - a);
-    for (const std::uint32_t v : t) n[v] += face;  // area-weighted
+    const Vec3f face = unit_face_normal(surface.vertices, t);
+    for (const std::uint32_t v : t) n[v] += face;
   }
   for (Vec3f& x : n)
     if (x.norm() > 0.0f) x.normalize();

@@ -187,10 +187,7 @@ TEST(EchoPipeline, CoarseRetryGetsTheGenusRightAtContrastPointThree) {
 TEST(EchoPipeline, WallFitPlacesTheSurfaceOnTheWall) {
   const sim::Phantom lv = echo_phantom("lv", 0.5f);
   double truth_voxels = 0;
-  const volume::Vec3i& n = lv.truth.dims();
-  for (int k = 0; k < n.z(); ++k)
-    for (int j = 0; j < n.y(); ++j)
-      for (int i = 0; i < n.x(); ++i) truth_voxels += lv.truth.value(i, j, k) > 0.5f ? 1 : 0;
+  for (const std::uint8_t v : lv.truth.u8()) truth_voxels += v != 0;
   const double truth_ml = truth_voxels * lv.truth.spacing_mm().prod() * 1e-3;
   PipelineConfig config;
   config.wall_fit = false;
