@@ -95,6 +95,7 @@ json measure(const sim::PhantomSpec& spec, const daemon::RunConfig& config, int 
               {"quality", result.quality_ok ? "ok" : "suspect"},
               {"quality_reasons", result.quality_reasons},
               {"wall_support", result.wall_support},
+              {"open_patch", result.open_patch},
               {"stop_rule", result.stop_rule},
               {"second_opinion", result.second_opinion},
               {"stops", {s.boundary, s.curvature, s.self_intersection, s.iteration_limit}}});

@@ -128,6 +128,10 @@ struct PipelineResult {
   /// Share of the final surface's vertices with a brighter wall just beyond them in the image the
   /// balloon saw (the verdict wants 3/4); −1 when not measured (no surface).
   float wall_support = -1.0f;
+  /// Share of the final surface's area in its largest patch that looks into the target's inside
+  /// (measured on a cold result the verdict called ok, to ask for the second opinion); −1 when
+  /// not measured.
+  float open_patch = -1.0f;
   /// The speckle's grain measured around the seed and the pre-filter's sigma it chose (mm).
   float speckle_grain_mm = 0.0f;
   float smooth_sigma_mm = 0.0f;

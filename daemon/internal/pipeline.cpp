@@ -296,13 +296,29 @@ PipelineConfig with_level_stop(const PipelineConfig& config, bool level) {
 }
 
 // Whether `other` is the better of two results: a surface before none, an ok verdict before a
-// suspect one, and between two suspect ones the larger wall support (the verdict's own measure of
-// a surface on the target's wall rather than on speckle or in the tissue).
+// suspect one, between two suspect ones the larger wall support (the verdict's own measure of a
+// surface on the target's wall rather than on speckle or in the tissue), and between two ok ones
+// the smaller open patch without losing a handle (a stalled balloon finds none, and a stop that
+// closed a needle's thin tunnel at a small size looks as open as one that kept it).
 bool better(const PipelineResult& other, const PipelineResult& first) {
   if (other.ok != first.ok) return other.ok;
   if (!other.ok) return false;
   if (other.quality_ok != first.quality_ok) return other.quality_ok;
-  return !other.quality_ok && other.wall_support > first.wall_support;
+  if (!other.quality_ok) return other.wall_support > first.wall_support;
+  return other.open_patch >= 0.0f && other.open_patch < first.open_patch &&
+         other.topology.genus >= first.topology.genus;
+}
+
+// An ok result whose largest patch looking into the target's inside is beyond this share of its
+// area may have stalled in a tube (a torus's, at 64³ and contrast 0.5): the second opinion is
+// asked for. The verdict stands, because a real left ventricle's base opens onto the atrium.
+constexpr float kOpenPatchForSecondOpinion = 0.012f;
+
+// Measures `r`'s open patch (it is ok) and says whether it asks for the second opinion.
+bool open_widely(const PipelineBuffers& buffers, PipelineResult& r) {
+  r.open_patch = internal::open_patch(buffers.smoothed, r.mesh, r.balloon_stats.seed_level,
+                                      r.balloon_stats.tissue_level);
+  return r.open_patch > kOpenPatchForSecondOpinion;
 }
 
 // Judges a result: sets ok, error and the quality verdict.
@@ -327,7 +343,7 @@ std::string segment_opinions(const volume::Volume& input, const Vec3f& seed_mm,
   if (!switchable || error == "stopped" || result.warm_start) return error;
   judge(result, error);
   judged = true;
-  if (result.ok && result.quality_ok) return error;
+  if (result.ok && result.quality_ok && !open_widely(buffers, result)) return error;
   PipelineResult other = smoothed_only;
   std::string other_error = segment_stages(input, seed_mm, with_level_stop(config, !level_first),
                                            buffers, nullptr, stop, other);
@@ -336,6 +352,7 @@ std::string segment_opinions(const volume::Volume& input, const Vec3f& seed_mm,
   judge(other, other_error);
   other.second_opinion = true;
   other.start_reason = result.start_reason;  // (both cold: the first says why)
+  if (other.ok && other.quality_ok && result.quality_ok) open_widely(buffers, other);
   if (!better(other, result)) return error;
   result = std::move(other);
   return other_error;

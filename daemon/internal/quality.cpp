@@ -1,4 +1,5 @@
 // The quality verdict on a pipeline result (DESIGN.md "Targets, polarity and the quality verdict").
+#include <Eigen/Geometry>
 #include <algorithm>
 #include <cmath>
 
@@ -33,6 +34,12 @@ constexpr float kAheadToVox = 5.0f;
 constexpr float kBehindToVox = 3.0f;
 constexpr float kWallRiseFraction = 0.5f;
 constexpr float kLeastWallSupport = 0.75f;
+// The open-patch test of one triangle: the smoothed image 1-5 voxels beyond it looks like the
+// target's inside (its mean within 0.15 of the contrast above the target's level). A balloon
+// stalled in a tube has caps that look down it; a surface on the wall, even beside a wall's gap
+// or a needle's shadow in the simple simulator, sees brighter tissue within those voxels.
+constexpr float kOpenToVox = 5.0f;
+constexpr float kOpenLevelFraction = 0.15f;
 constexpr std::size_t kWallSupportSamples = 4000;  // vertices tested, evenly spread over the list
 
 double median_distance_mm(const std::vector<Vec3f>& points, const Vec3f& from) {
@@ -73,6 +80,15 @@ std::size_t on_sector_edge(const volume::Volume& input, const std::vector<std::u
   return n;
 }
 
+double area_mm2(const segment::Mesh& mesh) {
+  double sum = 0.0;
+  for (const auto& t : mesh.triangles)
+    sum += 0.5 * (mesh.vertices[t[1]] - mesh.vertices[t[0]])
+                     .cross(mesh.vertices[t[2]] - mesh.vertices[t[0]])
+                     .norm();
+  return sum;
+}
+
 // Mean of the smoothed image at p + n·d for d in [from, to] voxels, one sample per voxel.
 float mean_along(const volume::Volume& smoothed, const Vec3f& p, const Vec3f& n, float from_vox,
                  float to_vox, float vox_mm) {
@@ -102,6 +118,29 @@ float wall_support(const volume::Volume& smoothed, const segment::Mesh& surface,
     walls += ahead - behind >= kWallRiseFraction * contrast ? 1 : 0;
   }
   return tested > 0 ? static_cast<float>(walls) / static_cast<float>(tested) : -1.0f;
+}
+
+float open_patch(const volume::Volume& smoothed, const segment::Mesh& surface, float target_level,
+                 float tissue_level) {
+  const float contrast = tissue_level - target_level;
+  if (smoothed.empty() || surface.triangles.empty() || !(contrast > 0.0f)) return -1.0f;
+  const float vox_mm = smoothed.spacing_mm().minCoeff();
+  segment::Mesh open;
+  open.vertices = surface.vertices;
+  for (const auto& t : surface.triangles) {
+    const Vec3f &a = surface.vertices[t[0]], &b = surface.vertices[t[1]],
+                &c = surface.vertices[t[2]];
+    const Vec3f cross = (b - a).cross(c - a);
+    if (!(cross.norm() > 0.0f)) continue;  // (no direction to look in)
+    const Vec3f normal = cross.normalized();
+    const float ahead = mean_along(smoothed, (a + b + c) / 3.0f, normal, 1.0f, kOpenToVox, vox_mm);
+    if (ahead - target_level < kOpenLevelFraction * contrast) open.triangles.push_back(t);
+  }
+  double largest_mm2 = 0.0;
+  for (const segment::Mesh& patch : mesh::connected_components(open))
+    largest_mm2 = std::max(largest_mm2, area_mm2(patch));
+  const double total_mm2 = area_mm2(surface);
+  return total_mm2 > 0.0 ? static_cast<float>(largest_mm2 / total_mm2) : -1.0f;
 }
 
 void quality_verdict(const volume::Volume& input, const volume::Volume& smoothed,

@@ -31,6 +31,7 @@ nlohmann::json report_json(const PipelineResult& result, const std::string& inpu
   report["quality"] = result.quality_ok ? "ok" : "suspect";
   report["quality_reasons"] = result.quality_reasons;
   if (result.wall_support >= 0.0f) report["wall_support"] = result.wall_support;
+  if (result.open_patch >= 0.0f) report["open_patch"] = result.open_patch;
   report["start"] = result.warm_start ? "warm" : "cold";
   report["stop_rule"] = result.stop_rule;
   report["second_opinion"] = result.second_opinion;

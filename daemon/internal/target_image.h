@@ -36,6 +36,13 @@ bool working_image(const volume::Volume& input, TargetPolarity target,
 float wall_support(const volume::Volume& smoothed, const segment::Mesh& surface, float target_level,
                    float tissue_level);
 
+/// Share of the surface's area in its largest connected patch of triangles that look into the
+/// target's inside: the smoothed image's mean 1-5 voxels beyond a triangle's centre lies within
+/// 0.15 of the contrast above `target_level` (`tissue_level` sets the contrast). −1 when it
+/// cannot be measured.
+float open_patch(const volume::Volume& smoothed, const segment::Mesh& surface, float target_level,
+                 float tissue_level);
+
 /// Fills result.quality_ok / quality_reasons (DESIGN.md "the quality verdict") from the balloon and
 /// the final surface: stalled near the seed, implausibly small, touching the volume's edge or the
 /// sector's (no data beyond), the iteration limit, the leak bound, and a wall_support under 3/4

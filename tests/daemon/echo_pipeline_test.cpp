@@ -122,6 +122,29 @@ TEST(EchoPipeline, SecondOpinionReplacesASuspectResultOnly) {
   EXPECT_EQ(plain.stop_rule, "cost");
 }
 
+// A balloon stalled in a torus's tube at 64³ (the paper's stop alone: genus 0, Dice about 0.4,
+// yet every test of the verdict passed) leaves caps that look down the tube: the open patch asks
+// for the second opinion, whose surface lies on the wall. A needle's tunnel, which the level stop
+// closes at this size, is not traded away for a smaller open patch.
+TEST(EchoPipeline, OpenPatchAsksForTheSecondOpinion) {
+  const sim::Phantom torus = echo_phantom("torus", 0.5f);
+  int genus = -1;
+  const double alone = pipeline_dice(torus, 0.0f, genus);
+  EXPECT_EQ(genus, 0) << "the paper's stop alone found the hole; Dice " << alone;
+  const PipelineResult r = run_pipeline(torus.image, torus.seed_mm, PipelineConfig{});
+  ASSERT_TRUE(r.ok && r.labels) << r.error;
+  EXPECT_TRUE(r.second_opinion);
+  EXPECT_EQ(r.topology.genus, 1);
+  EXPECT_TRUE(r.quality_ok);
+  EXPECT_LT(r.open_patch, 0.015f);
+  EXPECT_GE(internal::dice(*r.labels, torus.truth), 0.88);
+  const sim::Phantom needle = sim::make_phantom({.phantom = "cyst-needle", .size_vox = 64});
+  const PipelineResult kept = run_pipeline(needle.image, needle.seed_mm, PipelineConfig{});
+  ASSERT_TRUE(kept.ok) << kept.error;
+  EXPECT_EQ(kept.topology.genus, 1);
+  EXPECT_EQ(kept.stop_rule, "cost");
+}
+
 // A volume after one the level stop segmented (the second opinion) starts warm with the level
 // stop too, and needs no second opinion: one balloon, not three.
 TEST(EchoPipeline, WarmStartKeepsTheSecondOpinionsRule) {
