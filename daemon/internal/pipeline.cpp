@@ -374,6 +374,30 @@ float coarse_sigma_mm(const volume::Volume& input, float grain_mm, float grains)
   return std::clamp(grains * grain_mm, 2.0f * vox_mm, 3.0f * vox_mm);
 }
 
+// The fine fit after the coarse retry: the image smoothed at this share of the first pass's
+// sigma, and the wall fit with a reach and a move that span the coarse pre-filter's pull inward
+// (2-3 voxels), averaged over more rings, since this image keeps more of the speckle.
+constexpr float kFineFitSigmaFraction = 0.5f;
+constexpr segment::WallFitOptions kFineFit{.reach_vox = 4.0f, .rings = 7, .max_move_vox = 3.0f};
+
+// Fits a coarse retry's surface to the wall on a finer image than the first pass's: the coarse
+// pre-filter blurs the wall inward. Leaves `buffers.smoothed` holding that image.
+void fine_fit(const volume::Volume& input, const Vec3f& seed_mm, const PipelineConfig& config,
+              float first_sigma_mm, PipelineBuffers& buffers, PipelineResult& result) {
+  PipelineConfig fine = config;
+  fine.smooth_sigma_mm = kFineFitSigmaFraction * first_sigma_mm;
+  PipelineResult smoothed;
+  std::vector<std::uint8_t> no_data;
+  smooth_stage(input, seed_mm, fine, buffers, no_data, smoothed);
+  const auto t = Clock::now();
+  result.mesh = segment::fit_to_wall(buffers.smoothed, result.mesh, result.balloon_stats, kFineFit,
+                                     config.balloon.threads);
+  result.topology.volume_ml = reconstruct::enclosed_volume_ml(result.mesh);
+  result.enclosed_volume_ml = result.topology.volume_ml;
+  result.timings.smooth_ms += smoothed.timings.smooth_ms;
+  result.timings.reinflate_ms += ms_since(t);
+}
+
 // The coarse retry (docs/stopping.md departure 12): at low contrast both stop rules stop on the
 // speckle the grain-sized pre-filter leaves; a coarser one averages it out at the price of the
 // wall's sharpness. Its result replaces `result` unless it stalled as well and is no better.
@@ -394,6 +418,10 @@ void coarse_retry(const volume::Volume& input, const Vec3f& seed_mm, const Pipel
   judge(other, other_error);
   other.timings.smooth_ms += result.timings.smooth_ms;
   if (!(other.ok && !stalled_on_texture(other)) && !better(other, result)) return;
+  if (config.wall_fit && other.ok && other.topology.manifold) {
+    fine_fit(input, seed_mm, config, result.smooth_sigma_mm, buffers, other);
+    judge(other, other_error);  // (the verdict's wall test now on the finer image)
+  }
   result = std::move(other);
   error = std::move(other_error);
 }

@@ -186,7 +186,8 @@ TEST(EchoPipeline, ASuspectWarmResultGetsNoSecondOpinion) {
 
 // At contrast 0.3 both stop rules stall on the blood-pool speckle the grain-sized pre-filter
 // leaves; the coarse retry (docs/stopping.md departure 12) finds the target with its topology,
-// and says the result is suspect: its surface lies up to a few voxels inside the wall.
+// the fine fit takes its surface back out to the wall (measured 2026-12-04: Dice 0.892-0.911 →
+// 0.915-0.936, volume −13.6 to −1.7 % → −5.7 to +5.1 %), and the result is called suspect.
 TEST(EchoPipeline, CoarseRetryGetsTheGenusRightAtContrastPointThree) {
   for (const auto& [name, genus] : {std::tuple{"sphere", 0}, std::tuple{"cyst-needle", 1}})
     for (unsigned seed : {1u, 2u}) {
@@ -197,7 +198,11 @@ TEST(EchoPipeline, CoarseRetryGetsTheGenusRightAtContrastPointThree) {
       ASSERT_TRUE(r.ok && r.labels) << name << " seed " << seed << ": " << r.error;
       EXPECT_TRUE(r.coarse_retry) << name << " seed " << seed;
       EXPECT_EQ(r.topology.genus, genus) << name << " seed " << seed;
-      EXPECT_GE(internal::dice(*r.labels, phantom.truth), 0.85) << name << " seed " << seed;
+      EXPECT_GE(internal::dice(*r.labels, phantom.truth), 0.91) << name << " seed " << seed;
+      double truth_voxels = 0;
+      for (const std::uint8_t v : phantom.truth.u8()) truth_voxels += v != 0;
+      const double truth_ml = truth_voxels * phantom.truth.spacing_mm().prod() * 1e-3;
+      EXPECT_NEAR(r.enclosed_volume_ml / truth_ml, 1.0, 0.07) << name << " seed " << seed;
       EXPECT_FALSE(r.quality_ok) << name << " seed " << seed;
       EXPECT_NE(std::find(r.quality_reasons.begin(), r.quality_reasons.end(), "coarse pre-filter"),
                 r.quality_reasons.end());
