@@ -343,7 +343,10 @@ std::string segment_opinions(const volume::Volume& input, const Vec3f& seed_mm,
   if (!switchable || error == "stopped" || result.warm_start) return error;
   judge(result, error);
   judged = true;
-  if (result.ok && result.quality_ok && !open_widely(buffers, result)) return error;
+  // (At a pre-filter not the automatic one, as in the coarse retry, the blurred wall lies within
+  // the open patch's samples: it is not asked.)
+  if (result.ok && result.quality_ok && (config.smooth_sigma_mm || !open_widely(buffers, result)))
+    return error;
   PipelineResult other = smoothed_only;
   std::string other_error = segment_stages(input, seed_mm, with_level_stop(config, !level_first),
                                            buffers, nullptr, stop, other);
