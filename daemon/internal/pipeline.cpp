@@ -315,9 +315,9 @@ bool better(const PipelineResult& other, const PipelineResult& first) {
 constexpr float kOpenPatchForSecondOpinion = 0.012f;
 
 // Measures `r`'s open patch (it is ok) and says whether it asks for the second opinion.
-bool open_widely(const PipelineBuffers& buffers, PipelineResult& r) {
+bool open_widely(const PipelineBuffers& buffers, int threads, PipelineResult& r) {
   r.open_patch = internal::open_patch(buffers.smoothed, r.mesh, r.balloon_stats.seed_level,
-                                      r.balloon_stats.tissue_level);
+                                      r.balloon_stats.tissue_level, threads);
   return r.open_patch > kOpenPatchForSecondOpinion;
 }
 
@@ -345,7 +345,8 @@ std::string segment_opinions(const volume::Volume& input, const Vec3f& seed_mm,
   judged = true;
   // (At a pre-filter not the automatic one, as in the coarse retry, the blurred wall lies within
   // the open patch's samples: it is not asked.)
-  if (result.ok && result.quality_ok && (config.smooth_sigma_mm || !open_widely(buffers, result)))
+  if (result.ok && result.quality_ok &&
+      (config.smooth_sigma_mm || !open_widely(buffers, config.balloon.threads, result)))
     return error;
   PipelineResult other = smoothed_only;
   std::string other_error = segment_stages(input, seed_mm, with_level_stop(config, !level_first),
@@ -355,7 +356,8 @@ std::string segment_opinions(const volume::Volume& input, const Vec3f& seed_mm,
   judge(other, other_error);
   other.second_opinion = true;
   other.start_reason = result.start_reason;  // (both cold: the first says why)
-  if (other.ok && other.quality_ok && result.quality_ok) open_widely(buffers, other);
+  if (other.ok && other.quality_ok && result.quality_ok)
+    open_widely(buffers, config.balloon.threads, other);
   if (!better(other, result)) return error;
   result = std::move(other);
   return other_error;

@@ -5,6 +5,7 @@
 
 #include "daemon/internal/target_image.h"
 #include "mesh/mesh.h"
+#include "mesh/parallel.h"
 
 namespace sonomesh::daemon::internal {
 namespace {
@@ -40,6 +41,7 @@ constexpr float kLeastWallSupport = 0.75f;
 // or a needle's shadow in the simple simulator, sees brighter tissue within those voxels.
 constexpr float kOpenToVox = 5.0f;
 constexpr float kOpenLevelFraction = 0.15f;
+constexpr std::size_t kOpenGrain = 2048;           // triangles per task
 constexpr std::size_t kWallSupportSamples = 4000;  // vertices tested, evenly spread over the list
 
 double median_distance_mm(const std::vector<Vec3f>& points, const Vec3f& from) {
@@ -121,21 +123,28 @@ float wall_support(const volume::Volume& smoothed, const segment::Mesh& surface,
 }
 
 float open_patch(const volume::Volume& smoothed, const segment::Mesh& surface, float target_level,
-                 float tissue_level) {
+                 float tissue_level, int threads) {
   const float contrast = tissue_level - target_level;
   if (smoothed.empty() || surface.triangles.empty() || !(contrast > 0.0f)) return -1.0f;
   const float vox_mm = smoothed.spacing_mm().minCoeff();
+  std::vector<char> looks_inside(surface.triangles.size(), 0);
+  mesh::Workers(threads).parallel_for(
+      surface.triangles.size(), kOpenGrain, [&](std::size_t b, std::size_t e) {
+        for (std::size_t i = b; i < e; ++i) {
+          const auto& t = surface.triangles[i];
+          const Vec3f &a = surface.vertices[t[0]], &p = surface.vertices[t[1]],
+                      &c = surface.vertices[t[2]];
+          const Vec3f cross = (p - a).cross(c - a);
+          if (!(cross.norm() > 0.0f)) continue;  // (no direction to look in)
+          const float ahead = mean_along(smoothed, (a + p + c) / 3.0f, cross.normalized(), 1.0f,
+                                         kOpenToVox, vox_mm);
+          looks_inside[i] = ahead - target_level < kOpenLevelFraction * contrast;
+        }
+      });
   segment::Mesh open;
   open.vertices = surface.vertices;
-  for (const auto& t : surface.triangles) {
-    const Vec3f &a = surface.vertices[t[0]], &b = surface.vertices[t[1]],
-                &c = surface.vertices[t[2]];
-    const Vec3f cross = (b - a).cross(c - a);
-    if (!(cross.norm() > 0.0f)) continue;  // (no direction to look in)
-    const Vec3f normal = cross.normalized();
-    const float ahead = mean_along(smoothed, (a + b + c) / 3.0f, normal, 1.0f, kOpenToVox, vox_mm);
-    if (ahead - target_level < kOpenLevelFraction * contrast) open.triangles.push_back(t);
-  }
+  for (std::size_t i = 0; i < surface.triangles.size(); ++i)
+    if (looks_inside[i]) open.triangles.push_back(surface.triangles[i]);
   double largest_mm2 = 0.0;
   for (const segment::Mesh& patch : mesh::connected_components(open))
     largest_mm2 = std::max(largest_mm2, area_mm2(patch));

@@ -39,9 +39,9 @@ float wall_support(const volume::Volume& smoothed, const segment::Mesh& surface,
 /// Share of the surface's area in its largest connected patch of triangles that look into the
 /// target's inside: the smoothed image's mean 1-5 voxels beyond a triangle's centre lies within
 /// 0.15 of the contrast above `target_level` (`tissue_level` sets the contrast). −1 when it
-/// cannot be measured.
+/// cannot be measured. `threads` as segment::BalloonOptions::threads.
 float open_patch(const volume::Volume& smoothed, const segment::Mesh& surface, float target_level,
-                 float tissue_level);
+                 float tissue_level, int threads = 0);
 
 /// Fills result.quality_ok / quality_reasons (DESIGN.md "the quality verdict") from the balloon and
 /// the final surface: stalled near the seed, implausibly small, touching the volume's edge or the
