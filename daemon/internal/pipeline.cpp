@@ -4,23 +4,21 @@
 
 #include <algorithm>
 #include <chrono>
-#include <functional>
 #include <future>
 #include <tuple>
 #include <vector>
 
 #include "daemon/internal/coarse_start.h"
 #include "daemon/internal/metrics.h"
+#include "daemon/internal/opinions.h"
+#include "daemon/internal/stages.h"
 #include "daemon/internal/target_image.h"
 
 namespace sonomesh::daemon {
 namespace {
 
-using Clock = std::chrono::steady_clock;
-
-double ms_since(Clock::time_point start) {
-  return std::chrono::duration<double, std::milli>(Clock::now() - start).count();
-}
+using internal::Clock;
+using internal::ms_since;
 
 // Fewer oriented samples than this cannot describe a closed surface (the initial balloon alone has
 // 102 vertices); the FFT solve would only produce noise.
@@ -88,9 +86,8 @@ PipelineResult run_pipeline(const volume::Volume& input, const Vec3f& seed_mm,
   return run_pipeline(input, seed_mm, config, buffers, nullptr, std::move(stop));
 }
 
-namespace {
+namespace internal {
 
-// §0: what the balloon sees and its pre-filter (docs/stopping.md), into `buffers`.
 void smooth_stage(const volume::Volume& input, const Vec3f& seed_mm, const PipelineConfig& config,
                   PipelineBuffers& buffers, std::vector<std::uint8_t>& no_data,
                   PipelineResult& result) {
@@ -109,6 +106,10 @@ void smooth_stage(const volume::Volume& input, const Vec3f& seed_mm, const Pipel
   volume::smooth_gaussian(rewritten ? working : input, sigma_mm, buffers.smoothed);
   result.timings.smooth_ms = ms_since(t);
 }
+
+}  // namespace internal
+
+namespace {
 
 // The cold start: coarse to fine when configured (coarse_start.h), else from the small sphere.
 segment::BalloonResult cold_balloon(PipelineBuffers& buffers, const Vec3f& seed_mm,
@@ -239,8 +240,10 @@ void labels_stage(const volume::Volume& input, PipelineResult& result) {
   result.timings.labels_ms += ms_since(t);
 }
 
-// §1-5 and the second pass, after the smoothing: the balloon (warm, or cold), the surface, the
-// reinflation. Returns the error, empty if there is a surface.
+}  // namespace
+
+namespace internal {
+
 std::string segment_stages(const volume::Volume& input, const Vec3f& seed_mm,
                            const PipelineConfig& config, PipelineBuffers& buffers,
                            const WarmStart* warm, const std::stop_token& stop,
@@ -288,150 +291,7 @@ std::string segment_stages(const volume::Volume& input, const Vec3f& seed_mm,
   return stop.stop_requested() ? "stopped" : "";
 }
 
-// `config` with the second opinion's level stop on, or as it is.
-PipelineConfig with_level_stop(const PipelineConfig& config, bool level) {
-  PipelineConfig c = config;
-  if (level) c.balloon.level_stop_fraction = config.second_opinion_level_stop;
-  return c;
-}
-
-// Whether `other` is the better of two results: a surface before none, an ok verdict before a
-// suspect one, between two suspect ones the larger wall support (the verdict's own measure of a
-// surface on the target's wall rather than on speckle or in the tissue), and between two ok ones
-// the smaller open patch without losing a handle (a stalled balloon finds none, and a stop that
-// closed a needle's thin tunnel at a small size looks as open as one that kept it).
-bool better(const PipelineResult& other, const PipelineResult& first) {
-  if (other.ok != first.ok) return other.ok;
-  if (!other.ok) return false;
-  if (other.quality_ok != first.quality_ok) return other.quality_ok;
-  if (!other.quality_ok) return other.wall_support > first.wall_support;
-  return other.open_patch >= 0.0f && other.open_patch < first.open_patch &&
-         other.topology.genus >= first.topology.genus;
-}
-
-// An ok result whose largest patch looking into the target's inside is beyond this share of its
-// area may have stalled in a tube (a torus's, at 64³ and contrast 0.5): the second opinion is
-// asked for. The verdict stands, because a real left ventricle's base opens onto the atrium.
-constexpr float kOpenPatchForSecondOpinion = 0.012f;
-
-// Measures `r`'s open patch (it is ok) and says whether it asks for the second opinion.
-bool open_widely(const PipelineBuffers& buffers, int threads, PipelineResult& r) {
-  r.open_patch = internal::open_patch(buffers.smoothed, r.mesh, r.balloon_stats.seed_level,
-                                      r.balloon_stats.tissue_level, threads);
-  return r.open_patch > kOpenPatchForSecondOpinion;
-}
-
-// Judges a result: sets ok, error and the quality verdict.
-using Judge = std::function<void(PipelineResult&, std::string)>;
-
-// One scale's segmentation: the first stop rule (the one the warm start's result came from),
-// and where its cold result is suspect or missing, the other rule's on the same smoothed volume
-// (the second opinion, docs/stopping.md departure 9), the better kept. A warm result had an ok
-// one before it with the same rule: when it is suspect, this volume is the odd one, and the next
-// starts cold and may get the second opinion, so a live stream does not stall on one. Sets
-// `judged` when `result` has its verdict. Returns the error, empty if there is a surface.
-std::string segment_opinions(const volume::Volume& input, const Vec3f& seed_mm,
-                             const PipelineConfig& config, PipelineBuffers& buffers,
-                             const WarmStart* warm, const std::stop_token& stop, const Judge& judge,
-                             PipelineResult& result, bool& judged) {
-  const PipelineResult smoothed_only = result;
-  const bool switchable =
-      config.second_opinion_level_stop > 0.0f && !(config.balloon.level_stop_fraction > 0.0f);
-  const bool level_first = switchable && warm && warm->level_stop;
-  std::string error = segment_stages(input, seed_mm, with_level_stop(config, level_first), buffers,
-                                     warm, stop, result);
-  if (!switchable || error == "stopped" || result.warm_start) return error;
-  judge(result, error);
-  judged = true;
-  // (At a pre-filter not the automatic one, as in the coarse retry, the blurred wall lies within
-  // the open patch's samples: it is not asked.)
-  if (result.ok && result.quality_ok &&
-      (config.smooth_sigma_mm || !open_widely(buffers, config.balloon.threads, result)))
-    return error;
-  PipelineResult other = smoothed_only;
-  std::string other_error = segment_stages(input, seed_mm, with_level_stop(config, !level_first),
-                                           buffers, nullptr, stop, other);
-  result.second_opinion = true;
-  if (other_error == "stopped") return error;
-  judge(other, other_error);
-  other.second_opinion = true;
-  other.start_reason = result.start_reason;  // (both cold: the first says why)
-  if (other.ok && other.quality_ok && result.quality_ok)
-    open_widely(buffers, config.balloon.threads, other);
-  if (!better(other, result)) return error;
-  result = std::move(other);
-  return other_error;
-}
-
-// The verdict's reasons for a balloon that stopped on the texture around the seed.
-bool stalled_on_texture(const PipelineResult& r) {
-  for (const std::string& why : r.quality_reasons)
-    if (why == "stalled near the seed" || why == "implausibly small" ||
-        why == "surface not on the target's wall")
-      return true;
-  return false;
-}
-
-// The coarse retry's sigma: `grains` speckle grains, 2-3 voxels of the finest axis (beyond 3 a
-// needle's tunnel closes).
-float coarse_sigma_mm(const volume::Volume& input, float grain_mm, float grains) {
-  const float vox_mm = input.spacing_mm().minCoeff();
-  return std::clamp(grains * grain_mm, 2.0f * vox_mm, 3.0f * vox_mm);
-}
-
-// The fine fit after the coarse retry: the image smoothed at this share of the first pass's
-// sigma, and the wall fit with a reach and a move that span the coarse pre-filter's pull inward
-// (2-3 voxels), averaged over more rings, since this image keeps more of the speckle.
-constexpr float kFineFitSigmaFraction = 0.5f;
-constexpr segment::WallFitOptions kFineFit{.reach_vox = 4.0f, .rings = 7, .max_move_vox = 3.0f};
-
-// Fits a coarse retry's surface to the wall on a finer image than the first pass's: the coarse
-// pre-filter blurs the wall inward. Leaves `buffers.smoothed` holding that image.
-void fine_fit(const volume::Volume& input, const Vec3f& seed_mm, const PipelineConfig& config,
-              float first_sigma_mm, PipelineBuffers& buffers, PipelineResult& result) {
-  PipelineConfig fine = config;
-  fine.smooth_sigma_mm = kFineFitSigmaFraction * first_sigma_mm;
-  PipelineResult smoothed;
-  std::vector<std::uint8_t> no_data;
-  smooth_stage(input, seed_mm, fine, buffers, no_data, smoothed);
-  const auto t = Clock::now();
-  result.mesh = segment::fit_to_wall(buffers.smoothed, result.mesh, result.balloon_stats, kFineFit,
-                                     config.balloon.threads);
-  result.topology.volume_ml = reconstruct::enclosed_volume_ml(result.mesh);
-  result.enclosed_volume_ml = result.topology.volume_ml;
-  result.timings.smooth_ms += smoothed.timings.smooth_ms;
-  result.timings.reinflate_ms += ms_since(t);
-}
-
-// The coarse retry (docs/stopping.md departure 12): at low contrast both stop rules stop on the
-// speckle the grain-sized pre-filter leaves; a coarser one averages it out at the price of the
-// wall's sharpness. Its result replaces `result` unless it stalled as well and is no better.
-void coarse_retry(const volume::Volume& input, const Vec3f& seed_mm, const PipelineConfig& config,
-                  PipelineBuffers& buffers, const std::stop_token& stop, const Judge& judge,
-                  PipelineResult& result, std::string& error) {
-  PipelineConfig coarse = config;
-  coarse.smooth_sigma_mm =
-      coarse_sigma_mm(input, result.speckle_grain_mm, config.coarse_retry_grains);
-  PipelineResult other;
-  std::vector<std::uint8_t> no_data;  // (the same as the first smoothing's)
-  smooth_stage(input, seed_mm, coarse, buffers, no_data, other);
-  bool judged = false;
-  std::string other_error =
-      segment_opinions(input, seed_mm, coarse, buffers, nullptr, stop, judge, other, judged);
-  if (other_error == "stopped") return;
-  other.coarse_retry = true;  // (after the second opinion's choice, which it would force)
-  judge(other, other_error);
-  other.timings.smooth_ms += result.timings.smooth_ms;
-  if (!(other.ok && !stalled_on_texture(other)) && !better(other, result)) return;
-  if (config.wall_fit && other.ok && other.topology.manifold) {
-    fine_fit(input, seed_mm, config, result.smooth_sigma_mm, buffers, other);
-    judge(other, other_error);  // (the verdict's wall test now on the finer image)
-  }
-  result = std::move(other);
-  error = std::move(other_error);
-}
-
-}  // namespace
+}  // namespace internal
 
 PipelineResult run_pipeline(const volume::Volume& input, const Vec3f& seed_mm,
                             const PipelineConfig& config, PipelineBuffers& buffers,
@@ -439,6 +299,7 @@ PipelineResult run_pipeline(const volume::Volume& input, const Vec3f& seed_mm,
   const auto start = Clock::now();
   PipelineResult result;
   std::vector<std::uint8_t> no_data;  // (set in §0)
+  using internal::Judge;
   const Judge judge = [&](PipelineResult& r, std::string error) {
     r.ok = error.empty();
     r.error = std::move(error);
@@ -455,13 +316,13 @@ PipelineResult run_pipeline(const volume::Volume& input, const Vec3f& seed_mm,
   // tracked seed that drifted out becomes a failed volume, not an exception.
   if (!seed_mm.allFinite() || !input.contains_mm(seed_mm))
     return finish("the seed lies outside the volume");
-  smooth_stage(input, seed_mm, config, buffers, no_data, result);
+  internal::smooth_stage(input, seed_mm, config, buffers, no_data, result);
   if (stop.stop_requested()) return finish("stopped");
-  std::string error =
-      segment_opinions(input, seed_mm, config, buffers, warm, stop, judge, result, judged);
+  std::string error = internal::segment_opinions(input, seed_mm, config, buffers, warm, stop, judge,
+                                                 result, judged);
   if (judged && result.second_opinion && !config.smooth_sigma_mm &&
-      config.coarse_retry_grains > 0.0f && stalled_on_texture(result))
-    coarse_retry(input, seed_mm, config, buffers, stop, judge, result, error);
+      config.coarse_retry_grains > 0.0f && internal::stalled_on_texture(result))
+    internal::coarse_retry(input, seed_mm, config, buffers, stop, judge, result, error);
   if (!error.empty()) return finish(std::move(error));
   if (config.want_labels) labels_stage(input, result);
   return finish("");

@@ -1,0 +1,40 @@
+#pragma once
+/// @file
+/// @brief The second opinion and the coarse retry (docs/stopping.md departures 9 and 12): the
+/// pipeline's stages (stages.h) run again with the other stop rule or a coarser pre-filter, and
+/// the better result kept.
+
+#include <functional>
+#include <stop_token>
+#include <string>
+
+#include "daemon/pipeline.h"
+
+namespace sonomesh::daemon::internal {
+
+/// Judges a result: sets ok, error and the quality verdict.
+using Judge = std::function<void(PipelineResult&, std::string)>;
+
+/// One scale's segmentation: the first stop rule (the one the warm start's result came from),
+/// and where its cold result is suspect or missing, the other rule's on the same smoothed volume
+/// (the second opinion, docs/stopping.md departure 9), the better kept. A warm result had an ok
+/// one before it with the same rule: when it is suspect, this volume is the odd one, and the next
+/// starts cold and may get the second opinion, so a live stream does not stall on one. Sets
+/// `judged` when `result` has its verdict. Returns the error, empty if there is a surface.
+std::string segment_opinions(const volume::Volume& input, const Vec3f& seed_mm,
+                             const PipelineConfig& config, PipelineBuffers& buffers,
+                             const WarmStart* warm, const std::stop_token& stop, const Judge& judge,
+                             PipelineResult& result, bool& judged);
+
+/// The verdict's reasons for a balloon that stopped on the texture around the seed.
+bool stalled_on_texture(const PipelineResult& r);
+
+/// The coarse retry (docs/stopping.md departure 12): at low contrast both stop rules stop on the
+/// speckle the grain-sized pre-filter leaves; a coarser one averages it out at the price of the
+/// wall's sharpness. Its result replaces `result` unless it stalled as well and is no better, and
+/// is then fitted to the wall on a finer image (the fine fit).
+void coarse_retry(const volume::Volume& input, const Vec3f& seed_mm, const PipelineConfig& config,
+                  PipelineBuffers& buffers, const std::stop_token& stop, const Judge& judge,
+                  PipelineResult& result, std::string& error);
+
+}  // namespace sonomesh::daemon::internal

@@ -1,0 +1,35 @@
+#pragma once
+/// @file
+/// @brief The per-volume pipeline's stages (daemon/internal/pipeline.cpp), for the second opinion
+/// and the coarse retry (opinions.h), which run them again.
+
+#include <chrono>
+#include <cstdint>
+#include <stop_token>
+#include <string>
+#include <vector>
+
+#include "daemon/pipeline.h"
+
+namespace sonomesh::daemon::internal {
+
+using Clock = std::chrono::steady_clock;
+
+inline double ms_since(Clock::time_point start) {
+  return std::chrono::duration<double, std::milli>(Clock::now() - start).count();
+}
+
+/// §0: what the balloon sees and its pre-filter (docs/stopping.md), into `buffers.smoothed`;
+/// `no_data` receives the probe's no-data mask for a dark target.
+void smooth_stage(const volume::Volume& input, const Vec3f& seed_mm, const PipelineConfig& config,
+                  PipelineBuffers& buffers, std::vector<std::uint8_t>& no_data,
+                  PipelineResult& result);
+
+/// §1-5 and the second pass, after the smoothing: the balloon (warm, or cold), the surface, the
+/// reinflation. Returns the error, empty if there is a surface.
+std::string segment_stages(const volume::Volume& input, const Vec3f& seed_mm,
+                           const PipelineConfig& config, PipelineBuffers& buffers,
+                           const WarmStart* warm, const std::stop_token& stop,
+                           PipelineResult& result);
+
+}  // namespace sonomesh::daemon::internal
