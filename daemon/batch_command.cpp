@@ -16,6 +16,7 @@
 
 #include "daemon/commands.h"
 #include "daemon/internal/batch_manifest.h"
+#include "daemon/internal/clock.h"
 #include "daemon/internal/outputs.h"
 #include "daemon/pipeline.h"
 
@@ -23,7 +24,8 @@ namespace sonomesh::daemon {
 namespace {
 
 namespace fs = std::filesystem;
-using Clock = std::chrono::steady_clock;
+using internal::Clock;
+using internal::ms_since;
 
 // Exit codes: 0 every selected line has a result, 1 results could not be written or the run was
 // interrupted, 2 bad arguments or manifest.
@@ -39,10 +41,6 @@ struct BatchArgs {
   long long index = -1;
   bool quiet = false;
 };
-
-double ms_since(Clock::time_point t) {
-  return std::chrono::duration<double, std::milli>(Clock::now() - t).count();
-}
 
 // One input through the pipeline; its results.jsonl line (status processed or failed).
 nlohmann::json run_item(const BatchItem& item, const fs::path& out, PipelineBuffers& buffers) {

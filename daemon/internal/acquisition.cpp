@@ -4,10 +4,13 @@
 
 #include <algorithm>
 
+#include "daemon/internal/clock.h"
+
 namespace sonomesh::daemon {
 
-using Clock = std::chrono::steady_clock;
 using acquire::AcquireError;
+using internal::Clock;
+using internal::ms_since;
 
 namespace {
 
@@ -17,10 +20,6 @@ constexpr auto kMaxBackoff = std::chrono::milliseconds(500);
 // A repeated sequence this close below the highest one seen is a resend (dropped: it already has
 // its line); further back, or 0, means the probe restarted its counter (new journal epoch).
 constexpr std::uint64_t kResendWindow = 16;
-
-double ms_since(Clock::time_point t) {
-  return std::chrono::duration<double, std::milli>(Clock::now() - t).count();
-}
 
 }  // namespace
 

@@ -6,16 +6,11 @@
 #include <utility>
 #include <vector>
 
+#include "daemon/internal/clock.h"
 #include "mesh/parallel.h"
 
 namespace sonomesh::daemon::internal {
 namespace {
-
-using Clock = std::chrono::steady_clock;
-
-double ms_since(Clock::time_point start) {
-  return std::chrono::duration<double, std::milli>(Clock::now() - start).count();
-}
 
 // "leaked", with the balloon's own words when it has them (a balloon rolled back to before its
 // leak has none).

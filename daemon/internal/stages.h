@@ -3,21 +3,15 @@
 /// @brief The per-volume pipeline's stages (daemon/internal/pipeline.cpp), for the second opinion
 /// and the coarse retry (opinions.h), which run them again.
 
-#include <chrono>
 #include <cstdint>
 #include <stop_token>
 #include <string>
 #include <vector>
 
+#include "daemon/internal/clock.h"
 #include "daemon/pipeline.h"
 
 namespace sonomesh::daemon::internal {
-
-using Clock = std::chrono::steady_clock;
-
-inline double ms_since(Clock::time_point start) {
-  return std::chrono::duration<double, std::milli>(Clock::now() - start).count();
-}
 
 /// §0: what the balloon sees and its pre-filter (docs/stopping.md), into `buffers.smoothed`;
 /// `no_data` receives the probe's no-data mask for a dark target.
