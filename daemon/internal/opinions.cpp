@@ -65,6 +65,7 @@ void fine_fit(const volume::Volume& input, const Vec3f& seed_mm, const PipelineC
               float first_sigma_mm, PipelineBuffers& buffers, PipelineResult& result) {
   PipelineConfig fine = config;
   fine.smooth_sigma_mm = kFineFitSigmaFraction * first_sigma_mm;
+  fine.target = result.target;  // (decided once, by the first pass)
   PipelineResult smoothed;
   std::vector<std::uint8_t> no_data;
   smooth_stage(input, seed_mm, fine, buffers, no_data, smoothed);
@@ -126,6 +127,7 @@ void coarse_retry(const volume::Volume& input, const Vec3f& seed_mm, const Pipel
   PipelineConfig coarse = config;
   coarse.smooth_sigma_mm =
       coarse_sigma_mm(input, result.speckle_grain_mm, config.coarse_retry_grains);
+  coarse.target = result.target;  // (decided once, by the first pass)
   PipelineResult other;
   std::vector<std::uint8_t> no_data;  // (the same as the first smoothing's)
   smooth_stage(input, seed_mm, coarse, buffers, no_data, other);
