@@ -30,7 +30,7 @@ struct Args {
   std::string phantom = "cyst-needle";
   int size_vox = 128, volumes = 40;
   float spacing_mm = 0.4f, rate_hz = 10.0f;
-  bool quiet = false, warm_start = false;
+  bool quiet = false, warm_start = false, track = false;
 };
 
 // What the stream's volumes add up to.
@@ -65,12 +65,16 @@ double pct(std::vector<double> v, double q) {
 void print_row(int i, const daemon::PipelineResult& r, std::size_t plans, double dice) {
   std::printf(
       "%4d %3dx%3dx%3d %7.3f %5zu %9.1f %8.1f %5d %6.4f %8.1f it %d vit %lld evolve "
-      "%.0f remesh %.0f start %.1f %s\n",
+      "%.0f remesh %.0f start %.1f %s | smooth %.1f open %.1f mesh %.1f refit %.1f labels %.1f\n",
       i, r.grid_dims.x(), r.grid_dims.y(), r.grid_dims.z(), r.grid_cell_mm, plans,
       r.timings.reconstruct_ms, r.timings.total_ms, r.topology.genus, dice, r.timings.balloon_ms,
       r.balloon_iterations, static_cast<long long>(r.balloon_stats.vertex_iterations),
       r.balloon_stats.evolve_ms, r.balloon_stats.remesh_ms, r.balloon_stats.start_mesh_ms,
-      r.warm_start ? "warm" : r.start_reason.c_str());
+      r.tracking.chain ? "track"
+      : r.warm_start   ? ("warm " + r.tracking.refused).c_str()
+                       : r.start_reason.c_str(),
+      r.timings.smooth_ms, r.timings.opening_ms, r.timings.mesh_ms, r.timings.reinflate_ms,
+      r.timings.labels_ms);
 }
 
 void print_summary(const Args& a, const Tally& t, std::size_t plans) {
@@ -105,8 +109,8 @@ Tally run_stream(const Args& a) {
                                                           config, buffers, warm ? &*warm : nullptr);
     warm.reset();
     if (a.warm_start && r.ok) {
-      warm = daemon::WarmStart{r.balloon, r.balloon_stop, 3.0f * a.spacing_mm, r.topology.genus,
-                               r.stop_rule == "level"};
+      warm = daemon::warm_start_from(r, 3.0f * a.spacing_mm);
+      if (!a.track) warm->previous.reset();
       tracked_mm = r.deepest_interior_mm;
     }
     t.warm_count += r.warm_start;
@@ -135,6 +139,7 @@ int main(int argc, char** argv) {
   app.add_option("--rate", a.rate_hz)->check(CLI::PositiveNumber);
   app.add_flag("--quiet", a.quiet, "summary only");
   app.add_flag("--warm", a.warm_start, "warm start from the previous volume's balloon");
+  app.add_flag("--track", a.track, "with --warm: track the previous surface where it is safe");
   CLI11_PARSE(app, argc, argv);
   if (!a.quiet)
     std::printf("%4s %-12s %7s %5s %9s %8s %5s %6s %10s\n", "vol", "grid", "cell_mm", "plans",

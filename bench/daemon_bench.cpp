@@ -10,7 +10,7 @@
 // and the daemon's peak RSS (wait4 ru_maxrss). Targets: keep up with 10 volumes/s, p95 <= 150 ms.
 //
 //   daemon_bench [--size N] [--rate HZ] [--count N] [--phantom NAME] [--sonomeshd PATH]
-//                [--probe-sim PATH] [--work DIR] [--json FILE]
+//                [--probe-sim PATH] [--work DIR] [--json FILE] [--config TOML]
 #include <fcntl.h>
 #include <signal.h>
 #include <spawn.h>
@@ -50,6 +50,7 @@ struct Args {
   std::string probe_sim = PROBE_SIM_EXE;
   std::string work = "/tmp/sonomesh_daemon_bench";
   std::string json_out;
+  std::string config;  // passed to sonomeshd run as --config
 };
 
 pid_t spawn(const std::vector<std::string>& argv, const fs::path& log) {
@@ -93,6 +94,8 @@ bool parse_args(int argc, char** argv, Args& a) {
       a.work = v;
     else if (k == "--json")
       a.json_out = v;
+    else if (k == "--config")
+      a.config = v;
     else {
       std::fprintf(stderr, "daemon_bench: unknown option %s\n", k.c_str());
       return false;
@@ -141,9 +144,13 @@ bool run_daemon(const Args& a, const fs::path& work, const fs::path& recording,
   char seed_text[96];
   std::snprintf(seed_text, sizeof seed_text, "%.3f,%.3f,%.3f", seed.x(), seed.y(), seed.z());
   const auto t0 = Clock::now();
-  const pid_t daemon = spawn({a.sonomeshd, "run", "--source", "unix:" + sock.string(), "--out",
-                              (work / "out").string(), "--http", "off", "--seed-mm", seed_text},
-                             work / "daemon.log");
+  std::vector<std::string> argv{a.sonomeshd, "run",
+                                "--source",  "unix:" + sock.string(),
+                                "--out",     (work / "out").string(),
+                                "--http",    "off",
+                                "--seed-mm", seed_text};
+  if (!a.config.empty()) argv.insert(argv.end(), {"--config", a.config});
+  const pid_t daemon = spawn(argv, work / "daemon.log");
   int status = 0;
   if (wait4(daemon, &status, 0, &usage) != daemon) {
     std::perror("daemon_bench: wait4");
@@ -167,6 +174,7 @@ void report_journal(const Args& a, const fs::path& work, double wall_s, const ru
   std::vector<double> latency;
   std::vector<double> overhead;  // latency minus the pipeline: waiting, hand-over, writing, fsync
   std::map<std::string, double> stage_sum;
+  std::map<std::string, int> starts;  // cold, warm (a balloon), tracked
   int genus_ok = 0;
   std::ifstream in(work / "out" / "journal.jsonl");
   std::string line;
@@ -179,6 +187,7 @@ void report_journal(const Args& a, const fs::path& work, double wall_s, const ru
     overhead.push_back(j["latency_ms"].get<double>() - j["timings_ms"]["total"].get<double>());
     for (const auto& [stage, ms] : j["timings_ms"].items()) stage_sum[stage] += ms.get<double>();
     genus_ok += j["genus"] == 1;
+    ++starts[j["start_reason"] == "previous surface" ? "tracked" : j["start"].get<std::string>()];
   }
   const int processed = counts["processed"];
   const double stream_s = a.count / a.rate;
@@ -188,6 +197,7 @@ void report_journal(const Args& a, const fs::path& work, double wall_s, const ru
       {"volumes", a.count},
       {"phantom", a.phantom},
       {"counts", counts},
+      {"starts", starts},
       {"processed_per_s", processed / stream_s},
       {"kept_up_fraction", static_cast<double>(processed) / a.count},
       {"latency_ms",

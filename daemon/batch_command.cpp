@@ -73,6 +73,7 @@ nlohmann::json run_item(const BatchItem& item, const fs::path& out, PipelineBuff
   PipelineConfig config;
   if (item.target) config.target = *item.target;
   config.want_labels = false;  // batch writes mesh and report only
+  config.track_max_chain = 0;  // files are independent: nothing to track
   PipelineResult result;
   try {
     result = run_pipeline(input, seed_mm, config, buffers);

@@ -5,6 +5,7 @@
 
 #include <array>
 #include <limits>
+#include <memory>
 #include <nlohmann/json.hpp>
 #include <optional>
 #include <stop_token>
@@ -69,6 +70,11 @@ struct PipelineConfig {
   float coarse_start_inset_vox = 2.0f;  // the fine pass's inset, full-resolution voxels
   int coarse_start_min_vox = 48;        // least coarse voxels per axis (96³ inputs and up)
   int coarse_start_max_levels = 2;      // halvings at most (256³: 128³ and 64³)
+  /// Surface tracking (issue 17): a warm volume fits the previous result's surface to this
+  /// volume's wall (segment::fit_to_wall) instead of inflating a balloon and reconstructing, when
+  /// the checks of daemon/internal/track.h pass; at most this many volumes in a row, then the
+  /// balloon's warm start once, which anchors the chain again. 0 = off.
+  int track_max_chain = 20;
   bool want_labels = true;      // label volume on the input grid (inside = 1); seed tracking
                                 // does not need it (deepest_interior_mm comes from χ)
   bool want_indicator = false;  // the indicator function χ as a Float32 volume (for .vdb output)
@@ -142,12 +148,24 @@ struct PipelineResult {
   /// a warm start that was asked for was not used (the pipeline's safety check said so).
   bool warm_start = false;
   std::string start_reason;
+  /// Surface tracking (PipelineConfig::track_max_chain): `chain` volumes in a row were tracked,
+  /// this one included (0: the balloon ran); the open patch of the chain's first result, which
+  /// the tracked ones are checked against; and why tracking was refused on this volume (empty:
+  /// not refused, or not asked).
+  struct Tracking {
+    int chain = 0;
+    float open_patch_base = -1.0f;
+    std::string refused;
+  } tracking;
   /// The balloon's stop rule behind this result: "cost" (Ψ_cost, the paper's) or "level" (the
   /// level stop, as configured or as the second opinion); and whether the second opinion ran.
   std::string stop_rule = "cost";
   bool second_opinion = false;
   /// Tunnels through the target's own darkness were filled (reconstruct::close_dark_tunnels).
   bool dark_tunnels_closed = false;
+  /// A bright structure the surface had passed over (a needle) was opened, its walls added to
+  /// the reconstruction's samples (internal::open_bright_inside).
+  bool bright_inside_opened = false;
   /// A cold start that ran coarse to fine (PipelineConfig::coarse_start), the parts' times (all
   /// within timings.balloon_ms), and why the plain cold start ran instead when it was tried.
   struct CoarseStart {
@@ -202,7 +220,15 @@ struct WarmStart {
   // The previous result came from the level stop (the second opinion's rule): the warm balloon
   // runs it too, and the second opinion, if needed, is then Ψ_cost's.
   bool level_stop = false;
+  // The previous result (without labels or χ), whose surface is tracked on this volume when the
+  // checks allow it (PipelineConfig::track_max_chain). Null: the balloon starts from `balloon`.
+  std::shared_ptr<const PipelineResult> previous;
 };
+
+/// The warm start the next volume takes from `previous` (an ok result): its balloon, eroded by
+/// `inset_mm`, its genus and stop rule, and the result itself for tracking, its labels and χ left
+/// out (they are not tracked, and are a volume's size each).
+WarmStart warm_start_from(const PipelineResult& previous, float inset_mm);
 
 /// Same, the balloon starting from `warm` when it is given and safe on this volume
 /// (segment::inflate_balloon_from), else from the small sphere at the seed; the result says

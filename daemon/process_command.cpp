@@ -166,6 +166,7 @@ int run_process(const ProcessArgs& args) {
   if (auto problem = check_seed(input, seed_mm, config.target)) return fail(kFailed, *problem);
 
   config.want_labels = !args.labels.empty();  // (the report's deepest point comes from χ)
+  config.track_max_chain = 0;                 // one volume: nothing to track
   config.want_indicator = !args.vdb.empty();
   const PipelineResult result = run_pipeline(input, seed_mm, config);
 

@@ -8,11 +8,13 @@
 #include <tuple>
 #include <vector>
 
+#include "daemon/internal/bright_inside.h"
 #include "daemon/internal/coarse_start.h"
 #include "daemon/internal/metrics.h"
 #include "daemon/internal/opinions.h"
 #include "daemon/internal/stages.h"
 #include "daemon/internal/target_image.h"
+#include "daemon/internal/track.h"
 
 namespace sonomesh::daemon {
 namespace {
@@ -187,6 +189,9 @@ std::string surface_stage(const volume::Volume& input, const volume::Volume& smo
   reconstruct::PoissonOptions poisson = config.poisson;
   if (config.cell_from_voxel) poisson.cell_mm = input.spacing_mm().minCoeff();
   surface = reconstruct::reconstruct_surface(samples, seed_mm, poisson);
+  if (!surface.mesh.triangles.empty())
+    result.bright_inside_opened = internal::open_bright_inside(smoothed, samples, seed_mm, poisson,
+                                                               result.balloon_stats, surface);
   result.timings.reconstruct_ms = surface.reconstruct_ms;
   // A warm result of the previous result's genus has no handle to explain.
   if (!(known_genus && surface.topology.genus <= *known_genus)) {
@@ -238,6 +243,13 @@ void labels_stage(const volume::Volume& input, PipelineResult& result) {
   const auto t = Clock::now();
   result.labels = reconstruct::rasterize_labels(result.mesh, input);
   result.timings.labels_ms += ms_since(t);
+}
+
+// Whether this volume tracks the previous result's surface: there is one, the chain it belongs
+// to is not at its length yet, and no χ is wanted (tracking makes none).
+bool trackable(const PipelineConfig& config, const WarmStart* warm) {
+  return warm && warm->previous && !config.want_indicator &&
+         warm->previous->tracking.chain < config.track_max_chain;
 }
 
 }  // namespace
@@ -318,6 +330,12 @@ PipelineResult run_pipeline(const volume::Volume& input, const Vec3f& seed_mm,
     return finish("the seed lies outside the volume");
   internal::smooth_stage(input, seed_mm, config, buffers, no_data, result);
   if (stop.stop_requested()) return finish("stopped");
+  if (trackable(config, warm)) {
+    result.tracking.refused =
+        internal::track_surface(input, config, buffers, *warm->previous, judge, result);
+    judged = result.tracking.refused.empty();
+    if (judged) return finish("");
+  }
   std::string error = internal::segment_opinions(input, seed_mm, config, buffers, warm, stop, judge,
                                                  result, judged);
   if (judged && result.second_opinion && !config.smooth_sigma_mm &&
@@ -325,6 +343,10 @@ PipelineResult run_pipeline(const volume::Volume& input, const Vec3f& seed_mm,
     internal::coarse_retry(input, seed_mm, config, buffers, stop, judge, result, error);
   if (!error.empty()) return finish(std::move(error));
   if (config.want_labels) labels_stage(input, result);
+  if (!judged) judge(result, "");
+  judged = true;
+  if (config.track_max_chain > 0 && result.quality_ok)
+    internal::measure_tracking_base(buffers, config.balloon.threads, result);
   return finish("");
 }
 

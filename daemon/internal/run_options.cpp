@@ -237,6 +237,8 @@ std::vector<OptionSpec> pipeline_options() {
                   "least voxels per axis of a coarse grid", REF(pipeline.coarse_start_min_vox)));
   o.push_back(num("pipeline", "coarse_start_max_levels", "levels", closed(1, 4),
                   "halvings of the volume at most", REF(pipeline.coarse_start_max_levels)));
+  o.push_back(num("pipeline", "track_max_chain", "volumes", closed(0, 1000),
+                  "volumes in a row fitting the last surface", REF(pipeline.track_max_chain)));
   return o;
 }
 
@@ -248,9 +250,7 @@ std::vector<OptionSpec> balloon_options() {
   o.push_back(num(t, "time_step", "", above(0, 10), "h per iteration", BAL(time_step)));
   o.push_back(
       num(t, "inflation_vox", "vox", above(0, 10), "mu, outward speed", BAL(inflation_vox)));
-  o.push_back(num(t, "umbrella_weight", "", closed(0, 10),
-                  "lambda, smoothing towards the "
-                  "neighbours",
+  o.push_back(num(t, "umbrella_weight", "", closed(0, 10), "lambda, smoothing to the neighbours",
                   BAL(umbrella_weight)));
   o.push_back(num(t, "initial_radius_vox", "vox", closed(1, 100), "radius of the first sphere",
                   BAL(initial_radius_vox)));

@@ -22,6 +22,17 @@ double ms_between(Clock::time_point a, Clock::time_point b) {
 
 nlohmann::json vec_json(const SeedMm& v) { return {v[0], v[1], v[2]}; }
 
+// Why the volume started as it did: the pipeline's reason for a tracked surface or a refused warm
+// start, the worker's for the rest; a tracking the checks refused is named after the start that
+// ran instead.
+std::string start_reason(const StartDecision& decision, const PipelineResult& result) {
+  if (result.tracking.chain > 0) return result.start_reason;
+  std::string why = result.warm_start ? decision.reason : result.start_reason;
+  if (!result.tracking.refused.empty())
+    why += " (surface not tracked: " + result.tracking.refused + ")";
+  return why;
+}
+
 // The result's journal fields: topology, size, and the quality verdict (DESIGN.md).
 void describe_result(const PipelineResult& result, nlohmann::json& line) {
   line["genus"] = result.topology.genus;
@@ -201,7 +212,7 @@ void Worker::process(QueuedVolume item, PipelineBuffers& buffers, int lanes) {
   }
   if (!start->decision.warm) result.start_reason = start->decision.reason;
   line["start"] = result.warm_start ? "warm" : "cold";
-  line["start_reason"] = result.warm_start ? start->decision.reason : result.start_reason;
+  line["start_reason"] = start_reason(start->decision, result);
   nlohmann::json& timings = line["timings_ms"];
   timings["queue_wait"] = queue_wait_ms;
   for (const auto& [stage, ms] : result.timings.stages()) timings[stage] = ms;
@@ -224,7 +235,7 @@ void Worker::process(QueuedVolume item, PipelineBuffers& buffers, int lanes) {
   v.report["sequence"] = seq;
   v.report["seed_origin"] = to_string(start->seed.origin);
   v.report["queue_wait_ms"] = queue_wait_ms;
-  if (result.warm_start) v.report["start_reason"] = start->decision.reason;
+  v.report["start_reason"] = line["start_reason"];
   // The outputs are in the input's world frame (LPS mm, DESIGN.md "Geometry and files"): the
   // mesh mapped there, the labels given the input's direction (they share its grid and origin).
   v.mesh = internal::mesh_to_world(result.mesh, input);
@@ -257,16 +268,16 @@ void Worker::end_volume(std::uint64_t sequence, const volume::Volume& input, con
   keep_for_warm_start(input, result);
 }
 
-// The previous balloon, copied (another lane may start from it too); this volume's result
+// The previous warm start, copied (another lane may start from it too); this volume's result
 // replaces it. The inset: 3 voxels, plus how far the object moved last time (it may move as far
 // again); at 2 voxels warm volumes drifted from the truth (docs/tuning.md).
 std::optional<WarmStart> Worker::take_warm_start(const volume::Volume& input,
                                                  const StartDecision& start) {
   if (!start.warm || !previous_) return std::nullopt;
   const float vox_mm = input.spacing_mm().minCoeff();
-  return WarmStart{previous_->balloon, previous_->balloon_stop,
-                   (3.0f + previous_->motion_vox) * vox_mm, previous_->genus,
-                   previous_->level_stop};
+  WarmStart warm = previous_->warm;
+  warm.inset_mm = (3.0f + previous_->motion_vox) * vox_mm;
+  return warm;
 }
 
 // A tracked object whose genus changed since the last result is flagged "genus changed": a needle
@@ -299,8 +310,9 @@ StartDecision Worker::choose_start(const volume::Volume& input, const SeedCandid
   return decide_start(in);
 }
 
-// The balloon (genus 0 by construction; the reconstructed surface may have a tunnel), where the
-// result's centre is, how large it is, and how much both changed since the result before.
+// The warm start (the balloon, genus 0 by construction, and the result whose surface may be
+// tracked), where the result's centre is, how large it is, and how much both changed since the
+// result before.
 void Worker::keep_for_warm_start(const volume::Volume& input, const PipelineResult& result) {
   if (result.balloon.vertices.empty() || result.mesh.vertices.empty()) return;
   Previous next;
@@ -311,8 +323,6 @@ void Worker::keep_for_warm_start(const volume::Volume& input, const PipelineResu
   next.spacing_mm = input.spacing_mm();
   next.origin_mm = input.origin_mm();
   next.quality_ok = result.quality_ok;
-  next.genus = result.topology.genus;
-  next.level_stop = result.stop_rule == "level";
   if (last_centroid_mm_) {
     next.motion_vox =
         (next.centroid_mm - *last_centroid_mm_).norm() / input.spacing_mm().minCoeff();
@@ -323,8 +333,7 @@ void Worker::keep_for_warm_start(const volume::Volume& input, const PipelineResu
   }
   last_centroid_mm_ = next.centroid_mm;
   last_volume_ml_ = next.volume_ml;
-  next.balloon = result.balloon;  // (the report still lists it)
-  next.balloon_stop = result.balloon_stop;
+  next.warm = warm_start_from(result, 0.0f);
   previous_ = std::move(next);
 }
 

@@ -66,15 +66,12 @@ class Worker {
 
   // What the next volume's warm start needs from the last result; empty after a failure.
   struct Previous {
-    segment::Mesh balloon;  // grid frame mm, genus 0
-    std::vector<segment::StopReason> balloon_stop;
+    WarmStart warm;  // its inset set when it is taken
     Vec3f centroid_mm = Vec3f::Zero();
     double volume_ml = 0.0;
     Vec3i dims = Vec3i::Zero();
     Vec3f spacing_mm = Vec3f::Zero(), origin_mm = Vec3f::Zero();
     bool quality_ok = false;
-    int genus = 0;               // of the result's surface
-    bool level_stop = false;     // the result's stop rule was the level stop
     float motion_vox = 0.0f;     // centroid motion from the result before
     float volume_change = 0.0f;  // |ΔV| / V from the result before
   };

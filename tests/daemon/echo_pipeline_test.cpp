@@ -154,7 +154,8 @@ TEST(EchoPipeline, WarmStartKeepsTheSecondOpinionsRule) {
   const PipelineResult first = run_pipeline(echo.image, echo.seed_mm, PipelineConfig{}, buffers);
   ASSERT_TRUE(first.ok && first.quality_ok) << first.error;
   ASSERT_EQ(first.stop_rule, "level");
-  const WarmStart warm{first.balloon, first.balloon_stop, 1.5f, first.topology.genus, true};
+  const WarmStart warm{first.balloon, first.balloon_stop, 1.5f, first.topology.genus, true,
+                       nullptr};
   const PipelineResult next =
       run_pipeline(echo.image, echo.seed_mm, PipelineConfig{}, buffers, &warm);
   ASSERT_TRUE(next.ok && next.labels) << next.error;
@@ -174,7 +175,7 @@ TEST(EchoPipeline, ASuspectWarmResultGetsNoSecondOpinion) {
   PipelineBuffers buffers;
   const PipelineResult first = run_pipeline(echo.image, echo.seed_mm, cost_only, buffers);
   ASSERT_TRUE(first.ok) << first.error;
-  const WarmStart warm{first.balloon, first.balloon_stop, 1.5f, {}, false};
+  const WarmStart warm{first.balloon, first.balloon_stop, 1.5f, {}, false, nullptr};
   const PipelineResult next =
       run_pipeline(echo.image, echo.seed_mm, PipelineConfig{}, buffers, &warm);
   ASSERT_TRUE(next.ok) << next.error;

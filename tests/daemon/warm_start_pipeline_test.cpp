@@ -1,5 +1,6 @@
 // The warm start (issue 17) through the whole pipeline, as the daemon's worker runs it: each
-// volume's balloon starts from the previous volume's, and the results must be those of a cold
+// volume tracks the previous volume's surface or starts its balloon from the previous balloon,
+// and the results must be those of a cold
 // start (Dice >= 0.99 between them, the same genus); a needle withdrawn or inserted changes the
 // genus at once; a target that jumped is refused and the cold start segments it right.
 #include <gtest/gtest.h>
@@ -26,15 +27,14 @@ sim::Phantom frame(float time_s, bool needle = true) {
 }
 
 // A stream as the worker runs it: the seed is the last result's deepest point, the warm start
-// its balloon's interior eroded by 3 voxels.
+// its surface, tracked where the checks allow, else its balloon's interior eroded by 3 voxels.
 class Stream {
  public:
   PipelineResult next(const sim::Phantom& p) {
     const Vec3f seed = seed_.value_or(p.seed_mm);
     seed_used_ = seed;
     std::optional<WarmStart> warm;
-    if (previous_)
-      warm = WarmStart{previous_->balloon, previous_->balloon_stop, 3.0f * kSpacingMm, {}, false};
+    if (previous_) warm = warm_start_from(*previous_, 3.0f * kSpacingMm);
     PipelineResult r =
         run_pipeline(p.image, seed, PipelineConfig{}, buffers_, warm ? &*warm : nullptr);
     previous_.reset();
@@ -58,28 +58,32 @@ class Stream {
 // Every volume of a breathing stream, warm or (where the check refused the warm start) cold,
 // against a cold start from the same seed: the truth's genus, Dice between the two at least
 // `min_dice`, and the warm result no further from the truth than the cold one (within 0.005).
-// Returns how many volumes started warm.
-int agree_with_cold_start(bool needle, double min_dice) {
+// Returns how many volumes started warm, and how many of those tracked the previous surface.
+struct Starts {
+  int warm = 0, tracked = 0;
+};
+Starts agree_with_cold_start(bool needle, double min_dice) {
   Stream stream;
-  int warm_starts = 0;
+  Starts starts;
   for (int i = 0; i < 6; ++i) {
     const sim::Phantom p = frame(0.25f * static_cast<float>(i), needle);
     const PipelineResult warm = stream.next(p);
     EXPECT_TRUE(warm.ok) << "volume " << i << ": " << warm.error;
-    if (!warm.ok) return warm_starts;
-    warm_starts += warm.warm_start;
+    if (!warm.ok) return starts;
+    starts.warm += warm.warm_start;
+    starts.tracked += warm.tracking.chain > 0;
     // (The same seed: the tracked one. The phantom's own seed gives a result 1.4 % apart.)
     const PipelineResult cold = run_pipeline(p.image, stream.seed_used(), PipelineConfig{});
     EXPECT_TRUE(cold.ok) << cold.error;
-    if (!cold.ok) return warm_starts;
+    if (!cold.ok) return starts;
     const double between = internal::dice(*warm.labels, *cold.labels);
     const double warm_truth = internal::dice(*warm.labels, p.truth);
     const double cold_truth = internal::dice(*cold.labels, p.truth);
     std::printf(
         "volume %d needle %d genus %d (cold %d) %s, Dice warm-cold %.4f, "
         "to truth warm %.4f cold %.4f\n",
-        i, int(needle), warm.topology.genus, cold.topology.genus,
-        warm.warm_start ? "warm" : warm.start_reason.c_str(), between, warm_truth, cold_truth);
+        i, int(needle), warm.topology.genus, cold.topology.genus, warm.start_reason.c_str(),
+        between, warm_truth, cold_truth);
     EXPECT_EQ(warm.topology.genus, p.genus) << "volume " << i;
     // (With the needle the cold start's genus is not asserted: from the tracked seed it gives
     // genus 2 or 3 on some volumes, on main too, a seed-dependent fault of the pipeline.)
@@ -90,21 +94,26 @@ int agree_with_cold_start(bool needle, double min_dice) {
     EXPECT_GE(warm_truth, cold_truth - 0.005) << "volume " << i;
     EXPECT_GE(warm_truth, 0.95) << "volume " << i;
   }
-  return warm_starts;
+  return starts;
 }
 
 TEST(WarmStartPipeline, AgreesWithColdStartOnABreathingCyst) {
-  // Without the needle every volume after the first starts warm.
-  EXPECT_EQ(agree_with_cold_start(false, 0.99), 5);
+  // Without the needle every volume after the first starts warm; most track the surface (4 of 5
+  // when this was written).
+  const Starts starts = agree_with_cold_start(false, 0.99);
+  EXPECT_EQ(starts.warm, 5);
+  EXPECT_GE(starts.tracked, 2);
 }
 
 TEST(WarmStartPipeline, AgreesWithColdStartOnABreathingCystNeedle) {
   // With it, the balloon met itself behind the needle; its eroded interior keeps the two sheets
   // apart, so the warm starts are used there too (all 5 after the first when this was written).
-  // Warm and cold differ by Dice 0.986-0.988 (not the issue's 0.99): the warm results lie closer
-  // to the truth (0.976-0.977 against the cold ones' 0.971-0.975), with the truth's genus on
-  // every volume.
-  EXPECT_GE(agree_with_cold_start(true, 0.975), 4);
+  // Warm and cold differ by Dice 0.983-0.992 (not the issue's 0.99; 0.986-0.988 before surface
+  // tracking): the warm results lie as close to the truth or closer (0.978-0.980 against the
+  // cold ones' 0.973-0.981), with the truth's genus on every volume.
+  const Starts starts = agree_with_cold_start(true, 0.975);
+  EXPECT_GE(starts.warm, 4);
+  EXPECT_GE(starts.tracked, 1);  // (2 of 5 when this was written)
 }
 
 // The needle switched at volume 3: the genus must be the truth's on every volume from it on.
@@ -116,7 +125,7 @@ void follow_needle_switch(bool needle_before) {
     const PipelineResult r = stream.next(p);
     ASSERT_TRUE(r.ok) << "volume " << i << ": " << r.error;
     std::printf("volume %d needle %d genus %d %s\n", i, int(needle), r.topology.genus,
-                r.warm_start ? "warm" : r.start_reason.c_str());
+                (r.start_reason + " " + r.tracking.refused).c_str());
     EXPECT_EQ(r.topology.genus, p.genus)
         << "volume " << i << (r.warm_start ? " (warm)" : " (cold: " + r.start_reason + ")");
     EXPECT_GE(internal::dice(*r.labels, p.truth), 0.95) << "volume " << i;
@@ -148,7 +157,7 @@ TEST(WarmStartPipeline, AJumpedTargetFallsBackToAColdStart) {
   const Vec3i shift(12, 6, 0);
   const volume::Volume image = shifted(p.image, shift), truth = shifted(p.truth, shift);
   const Vec3f seed_mm = p.image.index_to_mm((p.seed_index + shift).cast<float>());
-  const WarmStart warm{first.balloon, first.balloon_stop, 2.0f * 0.5f, {}, false};
+  const WarmStart warm{first.balloon, first.balloon_stop, 2.0f * 0.5f, {}, false, nullptr};
   PipelineBuffers buffers;
   const PipelineResult r = run_pipeline(image, seed_mm, PipelineConfig{}, buffers, &warm);
   ASSERT_TRUE(r.ok) << r.error;

@@ -1,0 +1,214 @@
+// Bright structure inside a surface (bright_inside.h).
+#include "daemon/internal/bright_inside.h"
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <cstdlib>
+#include <numeric>
+#include <utility>
+#include <vector>
+
+namespace sonomesh::daemon::internal {
+namespace {
+
+constexpr int kDeepVox = 2;
+// Deep voxels a structure has beyond the odd bright grain: a needle through a 96³ cyst has ~270.
+constexpr long kLeastDeepVox = 40;
+
+const std::array<Vec3i, 6> kFaces = {Vec3i(1, 0, 0),  Vec3i(-1, 0, 0), Vec3i(0, 1, 0),
+                                     Vec3i(0, -1, 0), Vec3i(0, 0, 1),  Vec3i(0, 0, -1)};
+
+float mid_level(const segment::BalloonStats& levels) {
+  return 0.5f * (levels.seed_level + levels.tissue_level);
+}
+
+// The box in `grid`'s voxel indices, clamped to it.
+void index_box(const volume::Volume& grid, const mesh::Box& box, InsideRegion& region) {
+  const Vec3i last = grid.dims() - Vec3i::Ones();
+  region.lo = grid.mm_to_index(box.lo_mm).array().floor().cast<int>().max(0).matrix();
+  region.hi = grid.mm_to_index(box.hi_mm).array().ceil().cast<int>().min(last.array()).matrix();
+}
+
+// Calls visit(v) for every voxel of the region's box that is inside and brighter than the mid
+// level.
+template <typename Visit>
+void for_bright_inside(const volume::Volume& smoothed, const InsideRegion& region, Visit visit) {
+  const auto& image = smoothed.f32();
+  for (int z = region.lo.z(); z <= region.hi.z(); ++z)
+    for (int y = region.lo.y(); y <= region.hi.y(); ++y)
+      for (int x = region.lo.x(); x <= region.hi.x(); ++x) {
+        const Vec3i v(x, y, z);
+        if (image[smoothed.linear_index(x, y, z)] > region.mid_level && region.inside(v)) visit(v);
+      }
+}
+
+float value(const volume::Volume& smoothed, const Vec3i& v) {
+  return smoothed.f32()[smoothed.linear_index(v.x(), v.y(), v.z())];
+}
+
+// The smoothed image's gradient at p, by central differences half a voxel either way.
+Vec3f gradient_at(const volume::Volume& smoothed, const Vec3f& p_mm) {
+  Vec3f g;
+  for (int a = 0; a < 3; ++a) {
+    Vec3f d = Vec3f::Zero();
+    d[a] = 0.5f * smoothed.spacing_mm()[a];
+    g[a] = volume::sample_mm(smoothed, p_mm + d) - volume::sample_mm(smoothed, p_mm - d);
+  }
+  return g;
+}
+
+}  // namespace
+
+namespace {
+
+bool deep_inside(const volume::Volume& smoothed, const InsideRegion& region, const Vec3i& v) {
+  for (int a = 0; a < 3; ++a)
+    for (const int sign : {-1, 1}) {
+      Vec3i q = v;
+      q[a] += sign * kDeepVox;
+      if (!smoothed.contains_index(q) || !region.inside(q)) return false;
+    }
+  return true;
+}
+
+// The bright voxels inside, labelled by 26-connected component on the region's box: -1 none,
+// else the component's number; `sizes` gets each component's voxel count.
+std::vector<int> label_components(const volume::Volume& smoothed, const InsideRegion& region,
+                                  std::vector<long>& sizes) {
+  const Vec3i n = region.hi - region.lo + Vec3i::Ones();
+  const auto at = [&](const Vec3i& v) {
+    const Vec3i r = v - region.lo;
+    return (std::size_t(r.z()) * n.y() + r.y()) * n.x() + r.x();
+  };
+  std::vector<int> label(std::size_t(n.prod()), -2);  // -2: not looked at yet
+  for_bright_inside(smoothed, region, [&](const Vec3i& v) { label[at(v)] = -3; });  // bright
+  std::vector<Vec3i> stack;
+  for_bright_inside(smoothed, region, [&](const Vec3i& start) {
+    if (label[at(start)] != -3) return;
+    const int c = static_cast<int>(sizes.size());
+    sizes.push_back(0);
+    label[at(start)] = c;
+    stack.assign(1, start);
+    while (!stack.empty()) {
+      const Vec3i v = stack.back();
+      stack.pop_back();
+      ++sizes[c];
+      for (int dz = -1; dz <= 1; ++dz)
+        for (int dy = -1; dy <= 1; ++dy)
+          for (int dx = -1; dx <= 1; ++dx) {
+            const Vec3i q = v + Vec3i(dx, dy, dz);
+            if ((q.array() < region.lo.array()).any() || (q.array() > region.hi.array()).any() ||
+                label[at(q)] != -3)
+              continue;
+            label[at(q)] = c;
+            stack.push_back(q);
+          }
+    }
+  });
+  for (int& l : label) l = l >= 0 ? l : -1;
+  return label;
+}
+
+}  // namespace
+
+BrightStructure bright_structure(const volume::Volume& smoothed, const InsideRegion& region) {
+  std::vector<long> sizes;
+  const std::vector<int> label = label_components(smoothed, region, sizes);
+  BrightStructure s;
+  if (sizes.empty()) return s;
+  const auto largest = std::max_element(sizes.begin(), sizes.end());
+  const long all = std::accumulate(sizes.begin(), sizes.end(), 0L);
+  if (2 * *largest < all) return s;  // the speckle of a dark inside, not one structure
+  const int c = static_cast<int>(largest - sizes.begin());
+  const Vec3i n = region.hi - region.lo + Vec3i::Ones();
+  Vec3i lo = region.hi, hi = region.lo;
+  for (int z = region.lo.z(); z <= region.hi.z(); ++z)
+    for (int y = region.lo.y(); y <= region.hi.y(); ++y)
+      for (int x = region.lo.x(); x <= region.hi.x(); ++x) {
+        const Vec3i r = Vec3i(x, y, z) - region.lo;
+        if (label[(std::size_t(r.z()) * n.y() + r.y()) * n.x() + r.x()] != c) continue;
+        s.voxels.emplace_back(x, y, z);
+        lo = lo.cwiseMin(s.voxels.back());
+        hi = hi.cwiseMax(s.voxels.back());
+        s.deep_vox += deep_inside(smoothed, region, s.voxels.back()) ? 1 : 0;
+      }
+  s.extent_vox = hi - lo + Vec3i::Ones();
+  return s;
+}
+
+bool passed_over(const BrightStructure& structure, const InsideRegion& region) {
+  const int region_extent = (region.hi - region.lo + Vec3i::Ones()).maxCoeff();
+  return structure.deep_vox > kLeastDeepVox &&
+         4 * structure.deep_vox >= static_cast<long>(structure.voxels.size()) &&
+         2 * structure.extent_vox.maxCoeff() >= region_extent;
+}
+
+segment::PointCloud bright_walls(const volume::Volume& smoothed, const InsideRegion& region,
+                                 const BrightStructure& structure) {
+  segment::PointCloud walls;
+  const Vec3f spacing = smoothed.spacing_mm();
+  for (const Vec3i& v : structure.voxels)
+    for (const Vec3i& face : kFaces) {
+      const Vec3i q = v + face;
+      if (!smoothed.contains_index(q) || !(value(smoothed, q) <= region.mid_level) ||
+          !region.inside(q))
+        continue;
+      const float t =
+          (region.mid_level - value(smoothed, q)) / (value(smoothed, v) - value(smoothed, q));
+      const Vec3f p = smoothed.index_to_mm(q.cast<float>() + t * face.cast<float>());
+      const Vec3f g = gradient_at(smoothed, p);
+      if (!(g.norm() > 0.0f)) continue;
+      walls.points.push_back(p);
+      walls.normals.push_back(g.normalized());
+      const int axis = face.x() != 0 ? 0 : face.y() != 0 ? 1 : 2;
+      walls.area_mm2.push_back(spacing.prod() / spacing[axis]);
+    }
+  return walls;
+}
+
+InsideRegion inside_labels(const volume::Volume& labels, const mesh::Box& box,
+                           const segment::BalloonStats& levels) {
+  InsideRegion region;
+  index_box(labels, box, region);
+  region.mid_level = mid_level(levels);
+  region.inside = [&labels](const Vec3i& v) {
+    return labels.u8()[labels.linear_index(v.x(), v.y(), v.z())] != 0;
+  };
+  return region;
+}
+
+InsideRegion inside_indicator(const volume::Volume& smoothed, const volume::Volume& indicator,
+                              float iso, const mesh::Box& box,
+                              const segment::BalloonStats& levels) {
+  InsideRegion region;
+  index_box(smoothed, box, region);
+  region.mid_level = mid_level(levels);
+  region.inside = [&smoothed, &indicator, iso](const Vec3i& v) {
+    const Vec3f p = smoothed.index_to_mm(v.cast<float>());
+    return indicator.contains_mm(p) && volume::sample_mm(indicator, p) > iso;
+  };
+  return region;
+}
+
+bool open_bright_inside(const volume::Volume& smoothed, const segment::PointCloud& samples,
+                        const Vec3f& seed_mm, const reconstruct::PoissonOptions& poisson,
+                        const segment::BalloonStats& levels, reconstruct::SurfaceResult& surface) {
+  const InsideRegion region = inside_indicator(smoothed, surface.indicator, surface.iso,
+                                               mesh::bounding_box(surface.mesh), levels);
+  const BrightStructure structure = bright_structure(smoothed, region);
+  if (!passed_over(structure, region)) return false;
+  segment::PointCloud opened = samples;
+  const segment::PointCloud walls = bright_walls(smoothed, region, structure);
+  opened.points.insert(opened.points.end(), walls.points.begin(), walls.points.end());
+  opened.normals.insert(opened.normals.end(), walls.normals.begin(), walls.normals.end());
+  opened.area_mm2.insert(opened.area_mm2.end(), walls.area_mm2.begin(), walls.area_mm2.end());
+  reconstruct::SurfaceResult again = reconstruct::reconstruct_surface(opened, seed_mm, poisson);
+  if (again.mesh.triangles.empty() || !again.seed_enclosed) return false;
+  again.reconstruct_ms += surface.reconstruct_ms;
+  again.mesh_ms += surface.mesh_ms;
+  surface = std::move(again);
+  return true;
+}
+
+}  // namespace sonomesh::daemon::internal

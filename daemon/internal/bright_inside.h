@@ -1,0 +1,64 @@
+#pragma once
+/// @file
+/// @brief Bright structure inside a surface (issue 15, 17): a needle through a cyst that the
+/// surface passed over, or that came in since the surface was tracked.
+
+#include <functional>
+#include <vector>
+
+#include "daemon/pipeline.h"
+#include "mesh/mesh.h"
+
+namespace sonomesh::daemon::internal {
+
+/// Whether the centre of voxel (i, j, k) of the smoothed volume lies inside the surface.
+using InsideTest = std::function<bool(const Vec3i&)>;
+
+/// The inside of a voxel-grid box (index space, inclusive) and the level that divides the
+/// target's inside from its walls: half way from the seed region's level to the tissue's.
+struct InsideRegion {
+  Vec3i lo = Vec3i::Zero(), hi = Vec3i::Zero();
+  InsideTest inside;
+  float mid_level = 0.0f;
+};
+
+/// The largest 26-connected set of voxels inside brighter than the mid level in `smoothed` (a
+/// dark target's working image), when it holds at least half of them all: one structure (a
+/// needle), not the speckle of a dark inside. `deep_vox` counts those of its voxels whose
+/// neighbours 2 voxels away along each axis are inside too.
+struct BrightStructure {
+  std::vector<Vec3i> voxels;
+  long deep_vox = 0;
+  Vec3i extent_vox = Vec3i::Zero();  // of its box
+};
+BrightStructure bright_structure(const volume::Volume& smoothed, const InsideRegion& region);
+
+/// Whether the surface passed over the structure (issue 15): over 40 deep voxels, at least a
+/// quarter of its voxels deep (solid, not a shell along the surface's inside), and as long as
+/// half the region's box (across the target, not a cluster of bright grains).
+bool passed_over(const BrightStructure& structure, const InsideRegion& region);
+
+/// Oriented samples on the structure's walls: at every face between one of its voxels and a dark
+/// voxel inside, where the image crosses the mid level, facing up its gradient (out of the
+/// target, into the structure), with the face's area.
+segment::PointCloud bright_walls(const volume::Volume& smoothed, const InsideRegion& region,
+                                 const BrightStructure& structure);
+
+/// The region inside `labels` (UInt8, inside = 1, on the smoothed volume's grid), within the
+/// surface's box.
+InsideRegion inside_labels(const volume::Volume& labels, const mesh::Box& box,
+                           const segment::BalloonStats& levels);
+
+/// The region inside χ > iso (on its own grid), within the surface's box.
+InsideRegion inside_indicator(const volume::Volume& smoothed, const volume::Volume& indicator,
+                              float iso, const mesh::Box& box, const segment::BalloonStats& levels);
+
+/// Where the reconstructed `surface` (from `samples`) passed over a bright structure, reconstructs
+/// it again with the bright structure's walls added to the samples, which opens a needle the
+/// balloon wrapped into the tunnel it is. Keeps the new surface when it encloses the seed. Returns
+/// whether it did.
+bool open_bright_inside(const volume::Volume& smoothed, const segment::PointCloud& samples,
+                        const Vec3f& seed_mm, const reconstruct::PoissonOptions& poisson,
+                        const segment::BalloonStats& levels, reconstruct::SurfaceResult& surface);
+
+}  // namespace sonomesh::daemon::internal

@@ -1,0 +1,150 @@
+// Surface tracking (track.h): the previous result's surface fitted to this volume's wall.
+#include "daemon/internal/track.h"
+
+#include <Eigen/Geometry>
+#include <cstdio>
+#include <utility>
+
+#include "daemon/internal/bright_inside.h"
+#include "daemon/internal/clock.h"
+#include "daemon/internal/target_image.h"
+
+namespace sonomesh::daemon::internal {
+namespace {
+
+// The first fit reaches as far as a breath moves a target between two volumes at the scanner's
+// rate (under a voxel at 20 volumes/s, the worker's limit for a warm start is 6 a volume); the
+// second is the pipeline's own last fit, so a tracked surface sits where a new one would.
+constexpr segment::WallFitOptions kFollow{.reach_vox = 4.0f, .rings = 3, .max_move_vox = 3.0f};
+// How much larger the open patch may grow over the chain's first result: a needle's tunnel is
+// 4-8 % of a cyst's area, half of it when the needle is half withdrawn.
+constexpr float kMostOpenGrowth = 0.01f;
+// Share of the area the fit may turn over (triangles whose normal reversed): marching cubes'
+// slivers flip under any move (0.1-0.5 % of a 128³ cyst's area), a fold along the normals where
+// the wall moved further than the surface's curvature allows turns more.
+constexpr double kMostFoldedShare = 0.02;
+
+Vec3f centroid_mm(const segment::Mesh& m) {
+  Vec3f sum = Vec3f::Zero();
+  for (const Vec3f& p : m.vertices) sum += p;
+  return m.vertices.empty() ? sum : Vec3f(sum / static_cast<float>(m.vertices.size()));
+}
+
+// The previous result's deepest point moved as the surface's centroid moved, on the nearest
+// voxel centre as the deepest point of χ is: breathing moves a target, but hardly changes it.
+std::optional<Vec3f> moved_with(const PipelineResult& previous, const segment::Mesh& surface,
+                                const volume::Volume& input) {
+  if (!previous.deepest_interior_mm) return std::nullopt;
+  const Vec3f moved_mm =
+      *previous.deepest_interior_mm + centroid_mm(surface) - centroid_mm(previous.mesh);
+  return input.index_to_mm(input.mm_to_index(moved_mm).array().round().matrix());
+}
+
+std::string percent(float share) {
+  char text[32];
+  std::snprintf(text, sizeof text, "%.1f %%", 100.0 * share);
+  return text;
+}
+
+// Share of the surface's area in triangles the fit turned over (their normal reversed).
+double folded_share(const segment::Mesh& before, const segment::Mesh& after) {
+  double folded = 0.0, total = 0.0;
+  for (const auto& t : before.triangles) {
+    const Vec3f a = (before.vertices[t[1]] - before.vertices[t[0]])
+                        .cross(before.vertices[t[2]] - before.vertices[t[0]]);
+    const Vec3f b = (after.vertices[t[1]] - after.vertices[t[0]])
+                        .cross(after.vertices[t[2]] - after.vertices[t[0]]);
+    total += b.norm();
+    folded += a.dot(b) < 0.0f ? b.norm() : 0.0;
+  }
+  return total > 0.0 ? folded / total : 0.0;
+}
+
+// The previous result as this volume's, with this volume's smoothing and the fitted surface.
+PipelineResult carried(const PipelineResult& previous, const PipelineResult& smoothed,
+                       segment::Mesh surface) {
+  PipelineResult r = previous;
+  r.mesh = std::move(surface);
+  r.labels.reset();
+  r.indicator.reset();
+  r.speckle_grain_mm = smoothed.speckle_grain_mm;
+  r.smooth_sigma_mm = smoothed.smooth_sigma_mm;
+  r.timings = StageTimings{.smooth_ms = smoothed.timings.smooth_ms};
+  r.balloon_iterations = 0;
+  r.second_opinion = false;
+  r.coarse_start = {};
+  r.dark_tunnels_closed = r.bright_inside_opened = false;  // (no reconstruction on this volume)
+  r.warm_start = true;
+  r.start_reason = "previous surface";
+  r.tracking.chain = previous.tracking.chain + 1;
+  r.tracking.refused.clear();
+  r.topology.volume_ml = reconstruct::enclosed_volume_ml(r.mesh);
+  r.enclosed_volume_ml = r.topology.volume_ml;
+  return r;
+}
+
+}  // namespace
+
+std::string track_surface(const volume::Volume& input, const PipelineConfig& config,
+                          const PipelineBuffers& buffers, const PipelineResult& previous,
+                          const Judge& judge, PipelineResult& result) {
+  if (previous.target != result.target) return "the polarity changed";
+  if (!previous.topology.manifold || previous.tracking.open_patch_base < 0.0f)
+    return "the previous result has no base to check against";
+  const int threads = config.balloon.threads;
+  const auto t = Clock::now();
+  segment::Mesh fitted = segment::fit_to_wall(buffers.smoothed, previous.mesh,
+                                              previous.balloon_stats, kFollow, threads);
+  fitted = segment::fit_to_wall(buffers.smoothed, fitted, previous.balloon_stats,
+                                config.wall_fit_options, threads);
+  const double folded = folded_share(previous.mesh, fitted);
+  if (folded > kMostFoldedShare) return "folded " + percent(static_cast<float>(folded));
+  PipelineResult tracked = carried(previous, result, std::move(fitted));
+  tracked.timings.reinflate_ms = ms_since(t);
+  tracked.deepest_interior_mm = moved_with(previous, tracked.mesh, input);
+  const segment::BalloonStats& levels = tracked.balloon_stats;
+  tracked.open_patch =
+      open_patch(buffers.smoothed, tracked.mesh, levels.seed_level, levels.tissue_level, threads);
+  if (tracked.open_patch > previous.tracking.open_patch_base + kMostOpenGrowth)
+    return "open patch " + percent(tracked.open_patch) + " from " +
+           percent(previous.tracking.open_patch_base);
+  const auto t_labels = Clock::now();
+  tracked.labels = reconstruct::rasterize_labels(tracked.mesh, input);
+  const InsideRegion inside =
+      inside_labels(*tracked.labels, mesh::bounding_box(tracked.mesh), levels);
+  const BrightStructure bright = bright_structure(buffers.smoothed, inside);
+  if (passed_over(bright, inside))
+    return "a bright structure inside, " + std::to_string(bright.voxels.size()) + " voxels";
+  if (!config.want_labels) tracked.labels.reset();
+  tracked.timings.labels_ms = ms_since(t_labels);
+  judge(tracked, "");
+  if (!tracked.quality_ok) return "suspect: " + tracked.quality_reasons.front();
+  result = std::move(tracked);
+  return "";
+}
+
+void measure_tracking_base(const PipelineBuffers& buffers, int threads, PipelineResult& result) {
+  const segment::BalloonStats& levels = result.balloon_stats;
+  if (result.open_patch < 0.0f)
+    result.open_patch =
+        open_patch(buffers.smoothed, result.mesh, levels.seed_level, levels.tissue_level, threads);
+  result.tracking.open_patch_base = result.open_patch;
+}
+
+}  // namespace sonomesh::daemon::internal
+
+namespace sonomesh::daemon {
+
+WarmStart warm_start_from(const PipelineResult& previous, float inset_mm) {
+  auto kept = std::make_shared<PipelineResult>(previous);
+  kept->labels.reset();
+  kept->indicator.reset();
+  return WarmStart{.balloon = previous.balloon,
+                   .balloon_stop = previous.balloon_stop,
+                   .inset_mm = inset_mm,
+                   .genus = previous.topology.genus,
+                   .level_stop = previous.stop_rule == "level",
+                   .previous = std::move(kept)};
+}
+
+}  // namespace sonomesh::daemon

@@ -1,0 +1,28 @@
+#pragma once
+/// @file
+/// @brief Surface tracking (issue 17): a warm volume's surface is the previous result's, fitted to
+/// this volume's wall, when nothing says the target changed in a way a fit cannot follow.
+
+#include <string>
+
+#include "daemon/internal/opinions.h"
+#include "daemon/pipeline.h"
+
+namespace sonomesh::daemon::internal {
+
+/// Fits `previous`'s surface to the wall in `buffers.smoothed` (two wall fits, the first with a
+/// reach for a breath's motion) and checks the result: hardly any of its area folded over, no
+/// larger patch looking into the target's inside than the chain's first result had (a needle
+/// withdrawn leaves its tunnel open), no bright structure inside (a needle inserted,
+/// bright_inside.h), and an ok verdict. The balloon, its statistics and the topology are carried
+/// over. Returns why tracking was refused, or empty when `result` holds the judged tracked result
+/// (labels included when `config.want_labels`).
+std::string track_surface(const volume::Volume& input, const PipelineConfig& config,
+                          const PipelineBuffers& buffers, const PipelineResult& previous,
+                          const Judge& judge, PipelineResult& result);
+
+/// Sets `result.tracking`'s base on a result the balloon made, for the chain it may start: its
+/// open patch (measured when it was not).
+void measure_tracking_base(const PipelineBuffers& buffers, int threads, PipelineResult& result);
+
+}  // namespace sonomesh::daemon::internal
