@@ -36,7 +36,8 @@ struct Args {
 // What the stream's volumes add up to.
 struct Tally {
   std::set<std::tuple<int, int, int>> grids;
-  std::vector<double> reconstruct_ms, total_ms, balloon_ms, labels_ms, start_mesh_ms, warm_total_ms;
+  std::vector<double> reconstruct_ms, total_ms, balloon_ms, labels_ms, start_mesh_ms, warm_total_ms,
+      tracked_total_ms;
   double dice_min = 1.0, dice_sum = 0.0;
   int genus_wrong = 0, failed = 0, warm_count = 0;
 
@@ -49,7 +50,9 @@ struct Tally {
     total_ms.push_back(r.timings.total_ms);
     balloon_ms.push_back(r.timings.balloon_ms);
     labels_ms.push_back(r.timings.labels_ms);
-    if (r.warm_start) {
+    if (r.tracking.chain > 0) {
+      tracked_total_ms.push_back(r.timings.total_ms);
+    } else if (r.warm_start) {
       start_mesh_ms.push_back(r.balloon_stats.start_mesh_ms);
       warm_total_ms.push_back(r.timings.total_ms);
     }
@@ -83,12 +86,14 @@ void print_summary(const Args& a, const Tally& t, std::size_t plans) {
       "%s %d³ x%d: grid sizes %zu, FFTW plans %zu, reconstruct p50 %.1f p90 %.1f ms, total p50 "
       "%.1f ms, genus wrong %d, Dice mean %.4f min %.4f, failed %d\n"
       "  warm starts %d of %d, balloon p50 %.1f ms, labels+deepest p50 %.1f ms\n"
-      "  warm volumes: start mesh min %.1f p50 %.1f p90 %.1f ms, total p50 %.1f ms\n",
+      "  warm balloon volumes: start mesh min %.1f p50 %.1f p90 %.1f ms, total p50 %.1f ms\n"
+      "  tracked volumes: %zu, total p50 %.1f p90 %.1f ms\n",
       a.phantom.c_str(), a.size_vox, a.volumes, t.grids.size(), plans, pct(t.reconstruct_ms, 0.5),
       pct(t.reconstruct_ms, 0.9), pct(t.total_ms, 0.5), t.genus_wrong,
       ok > 0 ? t.dice_sum / ok : 0.0, t.dice_min, t.failed, t.warm_count, a.volumes,
       pct(t.balloon_ms, 0.5), pct(t.labels_ms, 0.5), pct(t.start_mesh_ms, 0.0),
-      pct(t.start_mesh_ms, 0.5), pct(t.start_mesh_ms, 0.9), pct(t.warm_total_ms, 0.5));
+      pct(t.start_mesh_ms, 0.5), pct(t.start_mesh_ms, 0.9), pct(t.warm_total_ms, 0.5),
+      t.tracked_total_ms.size(), pct(t.tracked_total_ms, 0.5), pct(t.tracked_total_ms, 0.9));
 }
 
 // The stream, volume by volume, as the daemon's worker runs it: buffers reused and, with --warm,

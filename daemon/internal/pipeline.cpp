@@ -336,6 +336,13 @@ PipelineResult run_pipeline(const volume::Volume& input, const Vec3f& seed_mm,
     judged = result.tracking.refused.empty();
     if (judged) return finish("");
   }
+  // A tracked result carries the balloon of its chain's first volume, which the target has moved
+  // on from since (a warm balloon from it came out at Dice 0.975 where a cold one gives 0.984).
+  if (warm && warm->previous && warm->previous->tracking.chain > 0) {
+    result.start_reason = "the last balloon is " +
+                          std::to_string(warm->previous->tracking.chain + 1) + " volumes old";
+    warm = nullptr;
+  }
   std::string error = internal::segment_opinions(input, seed_mm, config, buffers, warm, stop, judge,
                                                  result, judged);
   if (judged && result.second_opinion && !config.smooth_sigma_mm &&

@@ -2,6 +2,7 @@
 #include "daemon/internal/track.h"
 
 #include <Eigen/Geometry>
+#include <cmath>
 #include <cstdio>
 #include <utility>
 
@@ -12,10 +13,15 @@
 namespace sonomesh::daemon::internal {
 namespace {
 
-// The first fit reaches as far as a breath moves a target between two volumes at the scanner's
-// rate (under a voxel at 20 volumes/s, the worker's limit for a warm start is 6 a volume); the
-// second is the pipeline's own last fit, so a tracked surface sits where a new one would.
-constexpr segment::WallFitOptions kFollow{.reach_vox = 4.0f, .rings = 3, .max_move_vox = 3.0f};
+// The pipeline's wall fit, repeated while it still moves the surface by this much on average (a
+// breath moves a wall up to about a voxel between two volumes at 10 volumes/s; one fit moves a
+// vertex by one at most), at most kMostFits times.
+constexpr float kSettledVox = 0.25f;
+constexpr int kMostFits = 3;
+// The surface's inside by ray parity (its labels) may differ from the volume it encloses by this
+// share: more and it crosses itself (a fit pushed one sheet through another), which the signed
+// volume hides and the labels do not.
+constexpr double kMostInsideMismatch = 0.0075;
 // How much larger the open patch may grow over the chain's first result: a needle's tunnel is
 // 4-8 % of a cyst's area, half of it when the needle is half withdrawn.
 constexpr float kMostOpenGrowth = 0.01f;
@@ -44,6 +50,31 @@ std::string percent(float share) {
   char text[32];
   std::snprintf(text, sizeof text, "%.1f %%", 100.0 * share);
   return text;
+}
+
+// `previous`'s surface fitted to this volume's wall (see kSettledVox).
+segment::Mesh follow_wall(const volume::Volume& smoothed, const PipelineResult& previous,
+                          const PipelineConfig& config, int threads) {
+  segment::Mesh fitted = previous.mesh;
+  const double vox_mm = smoothed.spacing_mm().minCoeff();
+  for (int i = 0; i < kMostFits; ++i) {
+    segment::Mesh next = segment::fit_to_wall(smoothed, fitted, previous.balloon_stats,
+                                              config.wall_fit_options, threads);
+    double moved_mm = 0.0;
+    for (std::size_t v = 0; v < next.vertices.size(); ++v)
+      moved_mm += (next.vertices[v] - fitted.vertices[v]).norm();
+    fitted = std::move(next);
+    if (moved_mm < kSettledVox * vox_mm * static_cast<double>(fitted.vertices.size())) break;
+  }
+  return fitted;
+}
+
+// (Labels' volume − enclosed volume) / enclosed volume.
+double inside_mismatch(const volume::Volume& labels, double enclosed_ml) {
+  std::size_t inside = 0;
+  for (const std::uint8_t v : labels.u8()) inside += v != 0;
+  const double labels_ml = static_cast<double>(inside) * labels.spacing_mm().prod() * 1e-3;
+  return enclosed_ml > 0.0 ? labels_ml / enclosed_ml - 1.0 : 1.0;
 }
 
 // Share of the surface's area in triangles the fit turned over (their normal reversed).
@@ -93,10 +124,7 @@ std::string track_surface(const volume::Volume& input, const PipelineConfig& con
     return "the previous result has no base to check against";
   const int threads = config.balloon.threads;
   const auto t = Clock::now();
-  segment::Mesh fitted = segment::fit_to_wall(buffers.smoothed, previous.mesh,
-                                              previous.balloon_stats, kFollow, threads);
-  fitted = segment::fit_to_wall(buffers.smoothed, fitted, previous.balloon_stats,
-                                config.wall_fit_options, threads);
+  const segment::Mesh fitted = follow_wall(buffers.smoothed, previous, config, threads);
   const double folded = folded_share(previous.mesh, fitted);
   if (folded > kMostFoldedShare) return "folded " + percent(static_cast<float>(folded));
   PipelineResult tracked = carried(previous, result, std::move(fitted));
@@ -110,6 +138,9 @@ std::string track_surface(const volume::Volume& input, const PipelineConfig& con
            percent(previous.tracking.open_patch_base);
   const auto t_labels = Clock::now();
   tracked.labels = reconstruct::rasterize_labels(tracked.mesh, input);
+  const double mismatch = inside_mismatch(*tracked.labels, tracked.enclosed_volume_ml);
+  if (std::abs(mismatch) > kMostInsideMismatch)
+    return "the surface crosses itself (inside " + percent(static_cast<float>(mismatch)) + ")";
   const InsideRegion inside =
       inside_labels(*tracked.labels, mesh::bounding_box(tracked.mesh), levels);
   const BrightStructure bright = bright_structure(buffers.smoothed, inside);

@@ -98,11 +98,12 @@ Starts agree_with_cold_start(bool needle, double min_dice) {
 }
 
 TEST(WarmStartPipeline, AgreesWithColdStartOnABreathingCyst) {
-  // Without the needle every volume after the first starts warm; most track the surface (4 of 5
-  // when this was written).
+  // Without the needle the volumes after the first track the surface (4 of 5 when this was
+  // written), or start cold where a check refused it after a tracked volume (whose balloon is
+  // stale); the warm balloon's own starts are WarmStartPipeline's other tests'.
   const Starts starts = agree_with_cold_start(false, 0.99);
-  EXPECT_EQ(starts.warm, 5);
-  EXPECT_GE(starts.tracked, 2);
+  EXPECT_GE(starts.warm, 4);
+  EXPECT_GE(starts.tracked, 3);
 }
 
 TEST(WarmStartPipeline, AgreesWithColdStartOnABreathingCystNeedle) {
@@ -113,7 +114,7 @@ TEST(WarmStartPipeline, AgreesWithColdStartOnABreathingCystNeedle) {
   // cold ones' 0.973-0.981), with the truth's genus on every volume.
   const Starts starts = agree_with_cold_start(true, 0.975);
   EXPECT_GE(starts.warm, 4);
-  EXPECT_GE(starts.tracked, 1);  // (2 of 5 when this was written)
+  EXPECT_GE(starts.tracked, 2);  // (4 of 5 when this was written)
 }
 
 // The needle switched at volume 3: the genus must be the truth's on every volume from it on.
