@@ -83,7 +83,7 @@ void fine_fit(const volume::Volume& input, const Vec3f& seed_mm, const PipelineC
 std::string segment_opinions(const volume::Volume& input, const Vec3f& seed_mm,
                              const PipelineConfig& config, PipelineBuffers& buffers,
                              const WarmStart* warm, const std::stop_token& stop, const Judge& judge,
-                             PipelineResult& result, bool& judged) {
+                             PipelineResult& result, bool& judged, bool known_target) {
   const PipelineResult smoothed_only = result;
   const bool switchable =
       config.second_opinion_level_stop > 0.0f && !(config.balloon.level_stop_fraction > 0.0f);
@@ -96,7 +96,8 @@ std::string segment_opinions(const volume::Volume& input, const Vec3f& seed_mm,
   // (At a pre-filter not the automatic one, as in the coarse retry, the blurred wall lies within
   // the open patch's samples: it is not asked.)
   if (result.ok && result.quality_ok &&
-      (config.smooth_sigma_mm || !open_widely(buffers, config.balloon.threads, result)))
+      (config.smooth_sigma_mm || known_target ||
+       !open_widely(buffers, config.balloon.threads, result)))
     return error;
   PipelineResult other = smoothed_only;
   std::string other_error = segment_stages(input, seed_mm, with_level_stop(config, !level_first),

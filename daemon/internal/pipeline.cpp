@@ -337,14 +337,18 @@ PipelineResult run_pipeline(const volume::Volume& input, const Vec3f& seed_mm,
     if (judged) return finish("");
   }
   // A tracked result carries the balloon of its chain's first volume, which the target has moved
-  // on from since (a warm balloon from it came out at Dice 0.975 where a cold one gives 0.984).
-  if (warm && warm->previous && warm->previous->tracking.chain > 0) {
+  // on from since (a warm balloon from it came out at Dice 0.975 where a cold one gives 0.984):
+  // the balloon starts cold, and its ok result is not asked again for a tube (the level stop's
+  // second opinion leaked for 2 s on the 128³ cyst-needle, whose open patch breathes 0.6-3.9 %).
+  const bool stale = warm && warm->previous && warm->previous->tracking.chain > 0;
+  if (stale) {
+    result.tracking.balloon_stale = true;
     result.start_reason = "the last balloon is " +
                           std::to_string(warm->previous->tracking.chain + 1) + " volumes old";
     warm = nullptr;
   }
   std::string error = internal::segment_opinions(input, seed_mm, config, buffers, warm, stop, judge,
-                                                 result, judged);
+                                                 result, judged, stale);
   if (judged && result.second_opinion && !config.smooth_sigma_mm &&
       config.coarse_retry_grains > 0.0f && internal::stalled_on_texture(result))
     internal::coarse_retry(input, seed_mm, config, buffers, stop, judge, result, error);

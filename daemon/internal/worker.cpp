@@ -254,7 +254,10 @@ void Worker::end_volume(std::uint64_t sequence, const volume::Volume& input, con
                         PipelineResult& result) {
   std::lock_guard lock(state_mutex_);
   const bool newest = !state_sequence_ || sequence >= *state_sequence_;
-  const bool refused = start.decision.warm && !result.warm_start;
+  // (A cold start after a refused tracking, or after a tracked chain, leaves a fresh result to
+  // track from: not a refused warm start.)
+  const bool refused = start.decision.warm && !result.warm_start &&
+                       result.tracking.refused.empty() && !result.tracking.balloon_stale;
   since_refused_ = refused ? 0 : std::min(since_refused_, 1 << 29) + 1;
   flag_genus_change(start.seed, result, newest);
   if (!newest) return;
