@@ -187,7 +187,8 @@ void report_journal(const Args& a, const fs::path& work, double wall_s, const ru
     overhead.push_back(j["latency_ms"].get<double>() - j["timings_ms"]["total"].get<double>());
     for (const auto& [stage, ms] : j["timings_ms"].items()) stage_sum[stage] += ms.get<double>();
     genus_ok += j["genus"] == 1;
-    ++starts[j["start_reason"] == "previous surface" ? "tracked" : j["start"].get<std::string>()];
+    const bool tracked = j["start_reason"].get<std::string>().rfind("previous surface", 0) == 0;
+    ++starts[tracked ? "tracked" : j["start"].get<std::string>()];
   }
   const int processed = counts["processed"];
   const double stream_s = a.count / a.rate;

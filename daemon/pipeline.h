@@ -72,8 +72,8 @@ struct PipelineConfig {
   int coarse_start_max_levels = 2;      // halvings at most (256³: 128³ and 64³)
   /// Surface tracking (issue 17): a warm volume fits the previous result's surface to this
   /// volume's wall (segment::fit_to_wall) instead of inflating a balloon and reconstructing, when
-  /// the checks of daemon/internal/track.h pass; at most this many volumes in a row, then the
-  /// balloon's warm start once, which anchors the chain again. 0 = off.
+  /// the checks of daemon/internal/track.h pass; at most this many volumes in a row, then a cold
+  /// start (the chain's balloon is too old to start from), which anchors the next. 0 = off.
   int track_max_chain = 20;
   bool want_labels = true;      // label volume on the input grid (inside = 1); seed tracking
                                 // does not need it (deepest_interior_mm comes from χ)

@@ -332,7 +332,7 @@ PipelineResult run_pipeline(const volume::Volume& input, const Vec3f& seed_mm,
   if (stop.stop_requested()) return finish("stopped");
   if (trackable(config, warm)) {
     result.tracking.refused =
-        internal::track_surface(input, config, buffers, *warm->previous, judge, result);
+        internal::track_surface(input, seed_mm, config, buffers, *warm->previous, judge, result);
     judged = result.tracking.refused.empty();
     if (judged) return finish("");
   }

@@ -4,6 +4,7 @@
 #include <Eigen/Geometry>
 #include <cmath>
 #include <cstdio>
+#include <optional>
 #include <utility>
 
 #include "daemon/internal/bright_inside.h"
@@ -20,7 +21,7 @@ constexpr float kSettledVox = 0.25f;
 constexpr int kMostFits = 3;
 // The surface's inside by ray parity (its labels) may differ from the volume it encloses by this
 // share: more and it crosses itself (a fit pushed one sheet through another), which the signed
-// volume hides and the labels do not.
+// volume hides and the labels do not; it is then reconstructed from its own samples.
 constexpr double kMostInsideMismatch = 0.0075;
 // How much larger the open patch may grow over the chain's first result: a withdrawn needle's
 // tunnel adds 6.6-7.5 % of a cyst's area; a breathing 128³ cyst-needle's patch by the needle
@@ -28,7 +29,8 @@ constexpr double kMostInsideMismatch = 0.0075;
 constexpr float kMostOpenGrowth = 0.03f;
 // Share of the area the fit may turn over (triangles whose normal reversed): marching cubes'
 // slivers flip under any move (0.1-0.5 % of a 128³ cyst's area), a fold along the normals where
-// the wall moved further than the surface's curvature allows turns more.
+// the wall moved further than the surface's curvature allows turns more, and the surface is
+// then reconstructed from its own samples.
 constexpr double kMostFoldedShare = 0.02;
 
 Vec3f centroid_mm(const segment::Mesh& m) {
@@ -92,6 +94,50 @@ double folded_share(const segment::Mesh& before, const segment::Mesh& after) {
   return total > 0.0 ? folded / total : 0.0;
 }
 
+// A surface a fit pushed through itself, made one surface again: its oriented samples through
+// Kazhdan's reconstruction, as the balloon's, and the wall fit once more. Unset where the
+// reconstruction lost the seed or the previous result's genus.
+std::optional<reconstruct::SurfaceResult> remade(
+    const volume::Volume& input, const volume::Volume& smoothed, const segment::Mesh& crossed,
+    const PipelineResult& previous, const Vec3f& seed_mm, const PipelineConfig& config) {
+  reconstruct::PoissonOptions poisson = config.poisson;
+  if (config.cell_from_voxel) poisson.cell_mm = input.spacing_mm().minCoeff();
+  reconstruct::SurfaceResult s =
+      reconstruct::reconstruct_surface(mesh::oriented_samples(crossed), seed_mm, poisson);
+  if (s.mesh.triangles.empty() || !s.seed_enclosed || !s.topology.manifold ||
+      s.topology.components != 1 || s.topology.genus != previous.topology.genus)
+    return std::nullopt;
+  s.mesh = segment::fit_to_wall(smoothed, s.mesh, previous.balloon_stats, config.wall_fit_options,
+                                config.balloon.threads);
+  return s;
+}
+
+// The labels of `tracked`'s surface, when it is not `folded` and they agree with the volume it
+// encloses (see kMostInsideMismatch); else the surface the fits folded or pushed through itself
+// is remade (`remade`) and checked again. Returns why not, or empty.
+std::string label_consistently(const volume::Volume& input, const volume::Volume& smoothed,
+                               const PipelineResult& previous, const Vec3f& seed_mm,
+                               const PipelineConfig& config, const std::string& folded,
+                               PipelineResult& tracked) {
+  tracked.labels = reconstruct::rasterize_labels(tracked.mesh, input);
+  double mismatch = inside_mismatch(*tracked.labels, tracked.enclosed_volume_ml);
+  if (folded.empty() && std::abs(mismatch) <= kMostInsideMismatch) return "";
+  const std::optional<reconstruct::SurfaceResult> again =
+      remade(input, smoothed, tracked.mesh, previous, seed_mm, config);
+  const std::string crossed = !folded.empty() ? folded
+                                              : "the surface crosses itself (inside " +
+                                                    percent(static_cast<float>(mismatch)) + ")";
+  if (!again) return crossed;
+  tracked.mesh = again->mesh;
+  tracked.topology = again->topology;
+  tracked.topology.volume_ml = reconstruct::enclosed_volume_ml(tracked.mesh);
+  tracked.enclosed_volume_ml = tracked.topology.volume_ml;
+  tracked.start_reason = "previous surface, reconstructed";
+  tracked.labels = reconstruct::rasterize_labels(tracked.mesh, input);
+  mismatch = inside_mismatch(*tracked.labels, tracked.enclosed_volume_ml);
+  return std::abs(mismatch) <= kMostInsideMismatch ? "" : crossed + ", reconstructed too";
+}
+
 // The previous result as this volume's, with this volume's smoothing and the fitted surface.
 PipelineResult carried(const PipelineResult& previous, const PipelineResult& smoothed,
                        segment::Mesh surface) {
@@ -117,17 +163,19 @@ PipelineResult carried(const PipelineResult& previous, const PipelineResult& smo
 
 }  // namespace
 
-std::string track_surface(const volume::Volume& input, const PipelineConfig& config,
-                          const PipelineBuffers& buffers, const PipelineResult& previous,
-                          const Judge& judge, PipelineResult& result) {
+std::string track_surface(const volume::Volume& input, const Vec3f& seed_mm,
+                          const PipelineConfig& config, const PipelineBuffers& buffers,
+                          const PipelineResult& previous, const Judge& judge,
+                          PipelineResult& result) {
   if (previous.target != result.target) return "the polarity changed";
   if (!previous.topology.manifold || previous.tracking.open_patch_base < 0.0f)
     return "the previous result has no base to check against";
   const int threads = config.balloon.threads;
   const auto t = Clock::now();
   const segment::Mesh fitted = follow_wall(buffers.smoothed, previous, config, threads);
-  const double folded = folded_share(previous.mesh, fitted);
-  if (folded > kMostFoldedShare) return "folded " + percent(static_cast<float>(folded));
+  const double folded_area = folded_share(previous.mesh, fitted);
+  const std::string folded =
+      folded_area > kMostFoldedShare ? "folded " + percent(static_cast<float>(folded_area)) : "";
   PipelineResult tracked = carried(previous, result, std::move(fitted));
   tracked.timings.reinflate_ms = ms_since(t);
   tracked.deepest_interior_mm = moved_with(previous, tracked.mesh, input);
@@ -138,10 +186,10 @@ std::string track_surface(const volume::Volume& input, const PipelineConfig& con
     return "open patch " + percent(tracked.open_patch) + " from " +
            percent(previous.tracking.open_patch_base);
   const auto t_labels = Clock::now();
-  tracked.labels = reconstruct::rasterize_labels(tracked.mesh, input);
-  const double mismatch = inside_mismatch(*tracked.labels, tracked.enclosed_volume_ml);
-  if (std::abs(mismatch) > kMostInsideMismatch)
-    return "the surface crosses itself (inside " + percent(static_cast<float>(mismatch)) + ")";
+  if (std::string why =
+          label_consistently(input, buffers.smoothed, previous, seed_mm, config, folded, tracked);
+      !why.empty())
+    return why;
   const InsideRegion inside =
       inside_labels(*tracked.labels, mesh::bounding_box(tracked.mesh), levels);
   const BrightStructure bright = bright_structure(buffers.smoothed, inside);

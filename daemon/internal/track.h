@@ -10,16 +10,18 @@
 
 namespace sonomesh::daemon::internal {
 
-/// Fits `previous`'s surface to the wall in `buffers.smoothed` (two wall fits, the first with a
-/// reach for a breath's motion) and checks the result: hardly any of its area folded over, no
-/// larger patch looking into the target's inside than the chain's first result had (a needle
-/// withdrawn leaves its tunnel open), no bright structure inside (a needle inserted,
+/// Fits `previous`'s surface to the wall in `buffers.smoothed` (the pipeline's wall fit, repeated
+/// until it settles) and checks the result: hardly any of its area folded over, no larger patch
+/// looking into the target's inside than the chain's first result had (a needle withdrawn leaves
+/// its tunnel open), labels that agree with the volume it encloses (else it crossed itself, and
+/// is reconstructed from its own samples once), no bright structure inside (a needle inserted,
 /// bright_inside.h), and an ok verdict. The balloon, its statistics and the topology are carried
 /// over. Returns why tracking was refused, or empty when `result` holds the judged tracked result
 /// (labels included when `config.want_labels`).
-std::string track_surface(const volume::Volume& input, const PipelineConfig& config,
-                          const PipelineBuffers& buffers, const PipelineResult& previous,
-                          const Judge& judge, PipelineResult& result);
+std::string track_surface(const volume::Volume& input, const Vec3f& seed_mm,
+                          const PipelineConfig& config, const PipelineBuffers& buffers,
+                          const PipelineResult& previous, const Judge& judge,
+                          PipelineResult& result);
 
 /// Sets `result.tracking`'s base on a result the balloon made, for the chain it may start: its
 /// open patch (measured when it was not).
