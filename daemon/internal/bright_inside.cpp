@@ -4,7 +4,6 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
-#include <cstdlib>
 #include <numeric>
 #include <utility>
 #include <vector>
@@ -58,10 +57,6 @@ Vec3f gradient_at(const volume::Volume& smoothed, const Vec3f& p_mm) {
   return g;
 }
 
-}  // namespace
-
-namespace {
-
 bool deep_inside(const volume::Volume& smoothed, const InsideRegion& region, const Vec3i& v) {
   for (int a = 0; a < 3; ++a)
     for (const int sign : {-1, 1}) {
@@ -77,6 +72,7 @@ bool deep_inside(const volume::Volume& smoothed, const InsideRegion& region, con
 std::vector<int> label_components(const volume::Volume& smoothed, const InsideRegion& region,
                                   std::vector<long>& sizes) {
   const Vec3i n = region.hi - region.lo + Vec3i::Ones();
+  if ((n.array() <= 0).any()) return {};  // (a surface outside the grid: no box)
   const auto at = [&](const Vec3i& v) {
     const Vec3i r = v - region.lo;
     return (std::size_t(r.z()) * n.y() + r.y()) * n.x() + r.x();
