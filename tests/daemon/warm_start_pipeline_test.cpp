@@ -1,8 +1,8 @@
 // The warm start (issue 17) through the whole pipeline, as the daemon's worker runs it: each
 // volume tracks the previous volume's surface or starts its balloon from the previous balloon,
-// and the results must be those of a cold
-// start (Dice >= 0.99 between them, the same genus); a needle withdrawn or inserted changes the
-// genus at once; a target that jumped is refused and the cold start segments it right.
+// and the results must be those of a cold start (Dice >= 0.99 between them, the same genus); a
+// needle withdrawn or inserted changes the genus at once; a target that jumped is refused and
+// the cold start segments it right.
 #include <gtest/gtest.h>
 
 #include <cstdio>
@@ -108,7 +108,8 @@ TEST(WarmStartPipeline, AgreesWithColdStartOnABreathingCyst) {
 
 TEST(WarmStartPipeline, AgreesWithColdStartOnABreathingCystNeedle) {
   // With it, the balloon met itself behind the needle; its eroded interior keeps the two sheets
-  // apart, so the warm starts are used there too (all 5 after the first when this was written).
+  // apart, so the warm starts are used there too (4 of 5 after the first when this was written,
+  // all of them tracked).
   // Warm and cold differ by Dice 0.983-0.992 (not the issue's 0.99; 0.986-0.988 before surface
   // tracking): the warm results lie as close to the truth or closer (0.978-0.980 against the
   // cold ones' 0.973-0.981), with the truth's genus on every volume.
