@@ -8,6 +8,8 @@
 #include <utility>
 #include <vector>
 
+#include "daemon/internal/clock.h"
+
 namespace sonomesh::daemon::internal {
 namespace {
 
@@ -77,11 +79,15 @@ std::vector<int> label_components(const volume::Volume& smoothed, const InsideRe
     const Vec3i r = v - region.lo;
     return (std::size_t(r.z()) * n.y() + r.y()) * n.x() + r.x();
   };
-  std::vector<int> label(std::size_t(n.prod()), -2);  // -2: not looked at yet
-  for_bright_inside(smoothed, region, [&](const Vec3i& v) { label[at(v)] = -3; });  // bright
+  std::vector<int> label(std::size_t(n.prod()), -2);  // -2: not bright inside
+  std::vector<Vec3i> bright;  // (the inside test samples χ: once per voxel)
+  for_bright_inside(smoothed, region, [&](const Vec3i& v) {
+    label[at(v)] = -3;  // bright, not labelled yet
+    bright.push_back(v);
+  });
   std::vector<Vec3i> stack;
-  for_bright_inside(smoothed, region, [&](const Vec3i& start) {
-    if (label[at(start)] != -3) return;
+  for (const Vec3i& start : bright) {
+    if (label[at(start)] != -3) continue;
     const int c = static_cast<int>(sizes.size());
     sizes.push_back(0);
     label[at(start)] = c;
@@ -101,7 +107,7 @@ std::vector<int> label_components(const volume::Volume& smoothed, const InsideRe
             stack.push_back(q);
           }
     }
-  });
+  }
   for (int& l : label) l = l >= 0 ? l : -1;
   return label;
 }
@@ -190,18 +196,26 @@ InsideRegion inside_indicator(const volume::Volume& smoothed, const volume::Volu
 bool open_bright_inside(const volume::Volume& smoothed, const segment::PointCloud& samples,
                         const Vec3f& seed_mm, const reconstruct::PoissonOptions& poisson,
                         const segment::BalloonStats& levels, reconstruct::SurfaceResult& surface) {
+  const auto t = Clock::now();  // (the search is the reconstruction's: timed with it)
   const InsideRegion region = inside_indicator(smoothed, surface.indicator, surface.iso,
                                                mesh::bounding_box(surface.mesh), levels);
   const BrightStructure structure = bright_structure(smoothed, region);
-  if (!passed_over(structure, region)) return false;
+  if (!passed_over(structure, region)) {
+    surface.reconstruct_ms += ms_since(t);
+    return false;
+  }
   segment::PointCloud opened = samples;
   const segment::PointCloud walls = bright_walls(smoothed, region, structure);
   opened.points.insert(opened.points.end(), walls.points.begin(), walls.points.end());
   opened.normals.insert(opened.normals.end(), walls.normals.begin(), walls.normals.end());
   opened.area_mm2.insert(opened.area_mm2.end(), walls.area_mm2.begin(), walls.area_mm2.end());
+  const double search_ms = ms_since(t);
   reconstruct::SurfaceResult again = reconstruct::reconstruct_surface(opened, seed_mm, poisson);
-  if (again.mesh.triangles.empty() || !again.seed_enclosed) return false;
-  again.reconstruct_ms += surface.reconstruct_ms;
+  if (again.mesh.triangles.empty() || !again.seed_enclosed) {
+    surface.reconstruct_ms += ms_since(t);
+    return false;
+  }
+  again.reconstruct_ms += surface.reconstruct_ms + search_ms;
   again.mesh_ms += surface.mesh_ms;
   surface = std::move(again);
   return true;

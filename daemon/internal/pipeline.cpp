@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <exception>
 #include <future>
 #include <tuple>
 #include <vector>
@@ -331,8 +332,12 @@ PipelineResult run_pipeline(const volume::Volume& input, const Vec3f& seed_mm,
   internal::smooth_stage(input, seed_mm, config, buffers, no_data, result);
   if (stop.stop_requested()) return finish("stopped");
   if (trackable(config, warm)) {
-    result.tracking.refused =
-        internal::track_surface(input, seed_mm, config, buffers, *warm->previous, judge, result);
+    try {
+      result.tracking.refused =
+          internal::track_surface(input, seed_mm, config, buffers, *warm->previous, judge, result);
+    } catch (const std::exception& e) {  // (then the balloon segments the volume)
+      result.tracking.refused = std::string("tracking failed: ") + e.what();
+    }
     judged = result.tracking.refused.empty();
     if (judged) return finish("");
   }
