@@ -2,7 +2,7 @@
 // reused buffers (as the daemon's worker runs it): per volume the reconstruction grid, the FFTW
 // plans made for it, the reconstruct stage's time, genus and Dice against the truth.
 //   breathing_bench [--phantom cyst-needle] [--size 128] [--spacing 0.4] [--volumes 40]
-//                   [--rate 10] [--warm] [--quiet]
+//                   [--rate 10] [--warm [--track [--chain 20]]] [--quiet]
 // --warm: each volume's balloon starts inside the previous one's (daemon::WarmStart, 3 voxels in,
 // as the daemon's worker with a still target) and the seed is the previous deepest point, as the
 // daemon's worker runs it (issue 17).
@@ -31,6 +31,7 @@ struct Args {
   int size_vox = 128, volumes = 40;
   float spacing_mm = 0.4f, rate_hz = 10.0f;
   bool quiet = false, warm_start = false, track = false;
+  int chain = daemon::PipelineConfig{}.track_max_chain;
 };
 
 // What the stream's volumes add up to.
@@ -65,14 +66,25 @@ double pct(std::vector<double> v, double q) {
   return v[std::min(v.size() - 1, std::size_t(q * double(v.size())))];
 }
 
-void print_row(int i, const daemon::PipelineResult& r, std::size_t plans, double dice) {
+// Labels' voxels over the truth's, minus one.
+double volume_error(const volume::Volume& labels, const volume::Volume& truth) {
+  const auto count = [](const volume::Volume& v) {
+    return static_cast<double>(
+        std::count_if(v.u8().begin(), v.u8().end(), [](auto x) { return x; }));
+  };
+  return count(labels) / std::max(1.0, count(truth)) - 1.0;
+}
+
+void print_row(int i, const daemon::PipelineResult& r, std::size_t plans, double dice,
+               double volume_error) {
   std::printf(
-      "%4d %3dx%3dx%3d %7.3f %5zu %9.1f %8.1f %5d %6.4f %8.1f it %d vit %lld evolve "
+      "%4d %3dx%3dx%3d %7.3f %5zu %9.1f %8.1f %5d %6.4f %+6.2f%% %8.1f it %d vit %lld evolve "
       "%.0f remesh %.0f start %.1f %s | smooth %.1f open %.1f mesh %.1f refit %.1f labels %.1f\n",
       i, r.grid_dims.x(), r.grid_dims.y(), r.grid_dims.z(), r.grid_cell_mm, plans,
-      r.timings.reconstruct_ms, r.timings.total_ms, r.topology.genus, dice, r.timings.balloon_ms,
-      r.balloon_iterations, static_cast<long long>(r.balloon_stats.vertex_iterations),
-      r.balloon_stats.evolve_ms, r.balloon_stats.remesh_ms, r.balloon_stats.start_mesh_ms,
+      r.timings.reconstruct_ms, r.timings.total_ms, r.topology.genus, dice, 100.0 * volume_error,
+      r.timings.balloon_ms, r.balloon_iterations,
+      static_cast<long long>(r.balloon_stats.vertex_iterations), r.balloon_stats.evolve_ms,
+      r.balloon_stats.remesh_ms, r.balloon_stats.start_mesh_ms,
       r.tracking.chain ? "track"
       : r.warm_start   ? ("warm " + r.tracking.refused).c_str()
                        : r.start_reason.c_str(),
@@ -100,6 +112,7 @@ void print_summary(const Args& a, const Tally& t, std::size_t plans) {
 // the previous balloon (3 voxels in, its genus checked) and deepest point carried forward.
 Tally run_stream(const Args& a) {
   daemon::PipelineConfig config;
+  config.track_max_chain = a.chain;
   daemon::PipelineBuffers buffers;
   Tally t;
   std::optional<daemon::WarmStart> warm;
@@ -127,7 +140,8 @@ Tally run_stream(const Args& a) {
     const double dice = daemon::internal::dice(*r.labels, p.truth);
     t.add(r, p, dice);
     if (!a.quiet)
-      print_row(i, r, reconstruct::internal::fft_plan_stats().plans_created - plans0, dice);
+      print_row(i, r, reconstruct::internal::fft_plan_stats().plans_created - plans0, dice,
+                volume_error(*r.labels, p.truth));
   }
   return t;
 }
@@ -145,10 +159,12 @@ int main(int argc, char** argv) {
   app.add_flag("--quiet", a.quiet, "summary only");
   app.add_flag("--warm", a.warm_start, "warm start from the previous volume's balloon");
   app.add_flag("--track", a.track, "with --warm: track the previous surface where it is safe");
+  app.add_option("--chain", a.chain, "with --track: volumes in a row tracked at most")
+      ->check(CLI::Range(0, 1000));
   CLI11_PARSE(app, argc, argv);
   if (!a.quiet)
-    std::printf("%4s %-12s %7s %5s %9s %8s %5s %6s %10s\n", "vol", "grid", "cell_mm", "plans",
-                "recon_ms", "total_ms", "genus", "dice", "balloon_ms");
+    std::printf("%4s %-12s %7s %5s %9s %8s %5s %6s %7s %10s\n", "vol", "grid", "cell_mm", "plans",
+                "recon_ms", "total_ms", "genus", "dice", "vol_err", "balloon_ms");
   const std::size_t plans_before = reconstruct::internal::fft_plan_stats().plans_created;
   const Tally t = run_stream(a);
   print_summary(a, t, reconstruct::internal::fft_plan_stats().plans_created - plans_before);
