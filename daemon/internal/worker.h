@@ -7,6 +7,7 @@
 #include <mutex>
 #include <optional>
 #include <stop_token>
+#include <string>
 
 #include "daemon/internal/acquisition.h"
 #include "daemon/internal/bounded_queue.h"
@@ -47,11 +48,15 @@ class Worker {
     SeedCandidate seed;
     StartDecision decision;
     std::optional<WarmStart> warm;
+    std::uint64_t anchor = 0;  // anchor_ when the warm start was taken
+    std::string anchor_note;   // Previous::note of that warm start
   };
   void process(QueuedVolume item, PipelineBuffers& buffers, int lanes);
   std::optional<Start> begin_volume(const volume::Volume& input, int lanes, nlohmann::json& line);
+  void refresh_anchor(std::uint64_t sequence, const volume::Volume& input, const Start& start,
+                      const Vec3f& seed_mm, const WarmStart& tracked, PipelineBuffers& buffers);
   // The state the next volumes start from, advanced by a result newer than the one it holds.
-  void end_volume(std::uint64_t sequence, const volume::Volume& input, const Start& start,
+  bool end_volume(std::uint64_t sequence, const volume::Volume& input, const Start& start,
                   PipelineResult& result);
   std::optional<SeedCandidate> pick_seed(const volume::Volume& input, const RunConfig& config,
                                          nlohmann::json& line);
@@ -74,6 +79,7 @@ class Worker {
     bool quality_ok = false;
     float motion_vox = 0.0f;     // centroid motion from the result before
     float volume_change = 0.0f;  // |ΔV| / V from the result before
+    std::string note;  // a refreshed anchor: said in the start_reason of the volume tracked from it
   };
 
   RunContext context_;
@@ -92,6 +98,8 @@ class Worker {
   int since_refused_ = 1 << 30;    // volumes since the pipeline last refused a warm start
   std::optional<int> last_genus_;  // of the last result with a surface
   bool cold_lane_busy_ = false;    // a lane started cold with nothing warm (claim_cold_start)
+  bool refresh_busy_ = false;      // a lane runs refresh_anchor
+  std::uint64_t anchor_ = 0;  // refreshes and new objects so far: a result begun before is not kept
   std::function<void()> turn_hook_;
 
   std::mutex override_mutex_;  // the one-slot mailbox from the HTTP and signal threads

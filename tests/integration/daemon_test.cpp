@@ -487,7 +487,8 @@ TEST(DaemonRun, AGenusChangeOfTheTrackedObjectIsFlaggedOnce) {
 
 // Issue 15: a breathing needle-pierced cyst in echo realism, 60 volumes at 96³ (six seconds at
 // 10 volumes/s), replayed through the daemon, which tracks the seed and warm-starts as it does
-// live: every volume processed, genus 1 on every one, most by surface tracking.
+// live: every volume processed, genus 1 on every one, most by surface tracking, each chain
+// re-anchored by the balloon without a cold start.
 TEST(DaemonRun, TrackedEchoCystNeedleKeepsGenusOneOnEveryVolume) {
   const ScratchDir dir("tracked_echo");
   fs::create_directories(dir / "volumes");
@@ -511,14 +512,22 @@ TEST(DaemonRun, TrackedEchoCystNeedleKeepsGenusOneOnEveryVolume) {
   EXPECT_EQ(*code, 0) << daemon->stderr_text();
   const auto by_seq = check_journal(dir / "out");
   ASSERT_EQ(count_status(by_seq, "processed"), kVolumes) << daemon->stderr_text();
-  int tracked = 0;
+  int tracked = 0, refreshed = 0, chain_end_colds = 0;
   for (const auto& [seq, line] : by_seq) {
     EXPECT_EQ(line["genus"], 1) << line.dump();
-    tracked += line["start_reason"].get<std::string>().rfind("previous surface", 0) == 0;
+    const std::string why = line["start_reason"].get<std::string>();
+    tracked += why.rfind("previous surface", 0) == 0;
+    refreshed += why.find("re-anchored by the balloon") != std::string::npos;
+    chain_end_colds += why.find("volumes old") != std::string::npos &&
+                       why.find("not tracked") == std::string::npos;
   }
   // Most volumes fit the last surface instead of a balloon (52 of 60 when this was written; the
   // rest start from the previous balloon, or cold after a refused warm start).
   EXPECT_GE(tracked, kVolumes / 2);
+  // A chain at its length (20) is re-anchored by the balloon after its last volume went out, and
+  // goes on from there: no volume starts cold for it.
+  EXPECT_GE(refreshed, 1);
+  EXPECT_EQ(chain_end_colds, 0);
 }
 
 TEST(DaemonRun, PrintConfigAndArgumentErrors) {
