@@ -488,10 +488,12 @@ TEST(DaemonRun, AGenusChangeOfTheTrackedObjectIsFlaggedOnce) {
 // Issue 15: a breathing needle-pierced cyst in echo realism, 60 volumes at 96³ (six seconds at
 // 10 volumes/s), replayed through the daemon, which tracks the seed and warm-starts as it does
 // live: every volume processed, genus 1 on every one, most by surface tracking, each chain
-// re-anchored by the balloon without a cold start.
-TEST(DaemonRun, TrackedEchoCystNeedleKeepsGenusOneOnEveryVolume) {
-  const ScratchDir dir("tracked_echo");
+// re-anchored by the balloon without a cold start; with one lane, and with two (the refresh on
+// one while the other tracks on).
+void run_tracked_echo_cyst_needle(const std::string& name, int lanes) {
+  const ScratchDir dir(name);
   fs::create_directories(dir / "volumes");
+  std::ofstream(dir / "lanes.toml") << "[daemon]\nlanes = " << lanes << "\n";
   constexpr int kVolumes = 60;
   sonomesh::sim::Vec3f first_seed_mm;
   for (int i = 0; i < kVolumes; ++i) {
@@ -506,7 +508,8 @@ TEST(DaemonRun, TrackedEchoCystNeedleKeepsGenusOneOnEveryVolume) {
   const std::string seed_mm = std::to_string(first_seed_mm.x()) + "," +
                               std::to_string(first_seed_mm.y()) + "," +
                               std::to_string(first_seed_mm.z());
-  auto daemon = start_daemon(dir, "replay:" + (dir / "volumes").string(), {"--seed-mm", seed_mm});
+  auto daemon = start_daemon(dir, "replay:" + (dir / "volumes").string(),
+                             {"--seed-mm", seed_mm, "--config", (dir / "lanes.toml").string()});
   const auto code = daemon->wait(120000ms);
   ASSERT_TRUE(code.has_value());
   EXPECT_EQ(*code, 0) << daemon->stderr_text();
@@ -528,6 +531,14 @@ TEST(DaemonRun, TrackedEchoCystNeedleKeepsGenusOneOnEveryVolume) {
   // goes on from there: no volume starts cold for it.
   EXPECT_GE(refreshed, 1);
   EXPECT_EQ(chain_end_colds, 0);
+}
+
+TEST(DaemonRun, TrackedEchoCystNeedleKeepsGenusOneOnEveryVolume) {
+  run_tracked_echo_cyst_needle("tracked_echo", 1);
+}
+
+TEST(DaemonRun, TrackedEchoCystNeedleOnTwoLanes) {
+  run_tracked_echo_cyst_needle("tracked_echo_lanes", 2);
 }
 
 TEST(DaemonRun, PrintConfigAndArgumentErrors) {
