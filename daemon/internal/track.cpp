@@ -96,10 +96,10 @@ double folded_share(const segment::Mesh& before, const segment::Mesh& after) {
 
 // A surface a fit pushed through itself, made one surface again: its oriented samples through
 // Kazhdan's reconstruction, as the balloon's, and the wall fit once more. First on cells
-// kCoarseCells times the balloon's (a third of the cells: 9-16 ms where 19-39), then on the
-// balloon's where the coarse cells lost the genus (a 2-voxel needle's tunnel may close). Unset
-// where both lost the seed or the previous result's genus.
-constexpr float kCoarseCells = 1.5f;
+// kCoarseCells times the balloon's (half the cells: 13-23 ms where 19-39), then on the
+// balloon's where the coarse cells lost the genus (a 2-voxel needle's tunnel may close; at 1.5
+// times it did on 2 of 7). Unset where both lost the seed or the previous result's genus.
+constexpr float kCoarseCells = 1.25f;
 
 std::optional<reconstruct::SurfaceResult> remade(
     const volume::Volume& input, const volume::Volume& smoothed, const segment::Mesh& crossed,
