@@ -91,6 +91,9 @@ struct BalloonOptions {
   // Leak bound: more vertices than a surface of this fraction of the volume's bounding-box area
   // needs means the balloon escaped through a gap; it ends with `error` set.
   float max_area_fraction = 1.0f;
+  // A leak that rolled back is sealed and the balloon inflated again, this often at most (a
+  // wall's dropout is one gap, seldom more); 0: a leak ends the balloon, rolled back.
+  int max_leak_seals = 6;
   int stall_window_iterations = 20;  // stop when no moving vertex got further than
   float stall_motion_vox = 0.02f;    // stall_motion_vox per iteration over this window
 

@@ -20,7 +20,6 @@ using namespace internal;
 // The share of a warm start's samples that may lie on speckle grains above the wall level when
 // the level stop runs (64³ echo sphere at contrast 0.5: 25 of 2 954, 0.85 %).
 constexpr float kLevelStartGrains = 0.02f;
-constexpr int kMaxLeakSeals = 6;
 
 // The seed's surroundings, analysed in the plain scale first: the relative scale's floor needs
 // the tissue level the rays estimate; then again in the scale actually used for the noise rate.
@@ -139,7 +138,7 @@ struct Prelude {
 };
 
 // Inflates; a leak that rolled back is sealed (leak_seal.h) and the balloon from before it
-// inflated again, up to kMaxLeakSeals times: a wall's dropout is one gap, seldom more.
+// inflated again, up to options.max_leak_seals times.
 BalloonResult evolve(const Prelude& pre, const BalloonOptions& options,
                      std::optional<BalloonEvolution>& evolution, BalloonResult& result,
                      const std::stop_token& stop) {
@@ -148,7 +147,8 @@ BalloonResult evolve(const Prelude& pre, const BalloonOptions& options,
   for (;;) {
     evolution->run(stop);
     iterations += stats.iterations;
-    if (!stats.leaked || !evolution->rolled_back() || stats.leak_seals == kMaxLeakSeals) break;
+    if (!stats.leaked || !evolution->rolled_back() || stats.leak_seals >= options.max_leak_seals)
+      break;
     std::optional<LeakSeal> seal =
         seal_leak(evolution->before_leak(), evolution->positions_mm(), pre.vox_mm);
     if (!seal) break;
