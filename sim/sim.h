@@ -49,6 +49,10 @@ struct PhantomSpec {
   // cyst-needle only: false leaves the needle out (withdrawn, or not yet inserted): the cyst
   // alone, genus 0. A stream switches it at some volume to change the topology.
   bool needle = true;
+  // cyst-needle only: how far the needle reaches, as a share of its full reach past its point
+  // nearest the cyst's centre. 1: through the cyst and out (genus 1); 0: withdrawn half-way,
+  // its tip in the cyst's middle (a dent, genus 0); in [-1, 1].
+  float needle_reach = 1.0f;
   Realism realism = Realism::Simple;
   // Echo only: speckle grain, the Gaussian sigma in mm of the speckle's lateral correlation (axial:
   // half of it, as a pulse is shorter than a beam is wide). Simple mode uses 1.0/0.6 voxel.

@@ -159,6 +159,9 @@ void add_generate_command(CLI::App& app, int& exit_code) {
       ->capture_default_str();
   cmd->add_option("--axis", args->axis, "Torus/ellipsoid/cyst axis X,Y,Z")->capture_default_str();
   cmd->add_option("--needle-axis", args->needle_axis, "Needle direction X,Y,Z (cyst-needle)");
+  cmd->add_option("--needle-reach", args->spec.needle_reach,
+                  "Needle reach (cyst-needle): 1 through the cyst, 0 tip in its middle")
+      ->capture_default_str();
   cmd->add_option("--out", args->out, "Image volume (.nrrd, .nhdr, .mha, .mhd)")->required();
   cmd->add_option("--truth", args->truth, "Truth labels volume, inside = 1")->required();
   cmd->callback([args, speckle, attenuation, &exit_code] {

@@ -40,6 +40,8 @@ void validate(const PhantomSpec& spec) {
   if (!(spec.attenuation_db_per_cm >= 0.0f && spec.attenuation_db_per_cm <= 20.0f))
     bad("attenuation_db_per_cm must be in [0, 20]");
   if (!std::isfinite(spec.time_s)) bad("time_s must be finite");
+  if (!(spec.needle_reach >= -1.0f && spec.needle_reach <= 1.0f))
+    bad("needle_reach must be in [-1, 1]");
   if (spec.realism == Realism::Echo && !(spec.speckle_mm >= 0.1f && spec.speckle_mm <= 5.0f))
     bad("speckle_mm must be in [0.1, 5] mm");
 }
@@ -179,8 +181,8 @@ Phantom make_phantom(const PhantomSpec& spec) {
 
   Phantom out;
   out.name = spec.phantom;
-  // (A cyst without its needle has no tunnel.)
-  out.genus = shape.kind() == internal::ShapeKind::CystNeedle && !shape.has_needle()
+  // (A cyst without its needle, or with the needle's tip inside it, has no tunnel.)
+  out.genus = shape.kind() == internal::ShapeKind::CystNeedle && !shape.needle_through()
                   ? 0
                   : internal::shape_genus(shape.kind());
   out.image = volume::Volume(dims, spec.spacing_mm, origin_mm, volume::VoxelType::UInt8);

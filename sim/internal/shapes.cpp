@@ -126,7 +126,7 @@ Shape::Shape(const PhantomSpec& spec, const Vec3f& origin_mm)
     Vec3f side = n.direction.cross(w_);
     if (side.norm() < 1e-3f) side = u_;  // needle along the cyst axis: offset sideways anyway
     n.point_mm = side.normalized() * (kNeedleOffset * R);
-    n.tip_t_mm = kNeedleTip * R;
+    n.tip_t_mm = spec.needle_reach * kNeedleTip * R;
     // ~1.25 voxels at 64^3, scaled with the volume, never below 1.2 voxels so the tunnel the
     // needle cuts through the cyst stays face-connected in the voxelised truth.
     const float radius_vox = std::max(1.2f, 1.25f * static_cast<float>(spec.size_vox) / 64.0f);
@@ -221,6 +221,15 @@ void Shape::evaluate_mm(const Vec3f& p_mm, float& target_sdf_mm, float& needle_s
                                          Vec3f(kCystAxes[0], kCystAxes[1], kCystAxes[2]) * R);
   target_sdf_mm = scale_ * std::max(cyst, -needle);
   needle_sdf_mm = scale_ * needle;
+}
+
+bool Shape::needle_through() const {
+  if (!needle_) return false;
+  const Vec3f tip = needle_->point_mm + needle_->tip_t_mm * needle_->direction;
+  const float R = half_extent_mm_;
+  return needle_->tip_t_mm > 0.0f &&
+         ellipsoid_sdf(Vec3f(tip.dot(u_), tip.dot(v_), tip.dot(w_)),
+                       Vec3f(kCystAxes[0], kCystAxes[1], kCystAxes[2]) * R) > 0.0f;
 }
 
 float Shape::needle_sdf_mm(const Vec3f& p_mm) const {

@@ -5,6 +5,7 @@
 // the cold start segments it right.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cstdio>
 #include <optional>
 
@@ -18,12 +19,13 @@ namespace {
 constexpr int kSize = 96;
 constexpr float kSpacingMm = 0.5f;
 
-sim::Phantom frame(float time_s, bool needle = true) {
+sim::Phantom frame(float time_s, bool needle = true, float needle_reach = 1.0f) {
   return sim::make_phantom({.phantom = "cyst-needle",
                             .size_vox = kSize,
                             .spacing_mm = Vec3f::Constant(kSpacingMm),
                             .time_s = time_s,
-                            .needle = needle});
+                            .needle = needle,
+                            .needle_reach = needle_reach});
 }
 
 // A stream as the worker runs it: the seed is the last result's deepest point, the warm start
@@ -118,15 +120,17 @@ TEST(WarmStartPipeline, AgreesWithColdStartOnABreathingCystNeedle) {
   EXPECT_GE(starts.tracked, 2);  // (4 of 5 when this was written)
 }
 
-// The needle switched at volume 3: the genus must be the truth's on every volume from it on.
-void follow_needle_switch(bool needle_before) {
+// The needle moved at volume 3 (`before` up to it, `after` from it, each a needle reach, or
+// no needle below -1): the genus must be the truth's on every volume from it on.
+void follow_needle_switch(float before, float after) {
   Stream stream;
   for (int i = 0; i < 6; ++i) {
-    const bool needle = i < 3 ? needle_before : !needle_before;
-    const sim::Phantom p = frame(0.1f * static_cast<float>(i), needle);
+    const float reach = i < 3 ? before : after;
+    const sim::Phantom p =
+        frame(0.1f * static_cast<float>(i), reach >= -1.0f, std::max(reach, -1.0f));
     const PipelineResult r = stream.next(p);
     ASSERT_TRUE(r.ok) << "volume " << i << ": " << r.error;
-    std::printf("volume %d needle %d genus %d %s\n", i, int(needle), r.topology.genus,
+    std::printf("volume %d needle reach %.1f genus %d %s\n", i, reach, r.topology.genus,
                 (r.start_reason + " " + r.tracking.refused).c_str());
     EXPECT_EQ(r.topology.genus, p.genus)
         << "volume " << i << (r.warm_start ? " (warm)" : " (cold: " + r.start_reason + ")");
@@ -134,9 +138,17 @@ void follow_needle_switch(bool needle_before) {
   }
 }
 
-TEST(WarmStartPipeline, GenusFollowsAWithdrawnNeedle) { follow_needle_switch(true); }
+constexpr float kNoNeedle = -2.0f;
 
-TEST(WarmStartPipeline, GenusFollowsAnInsertedNeedle) { follow_needle_switch(false); }
+TEST(WarmStartPipeline, GenusFollowsAWithdrawnNeedle) { follow_needle_switch(1.0f, kNoNeedle); }
+
+TEST(WarmStartPipeline, GenusFollowsAnInsertedNeedle) { follow_needle_switch(kNoNeedle, 1.0f); }
+
+// Withdrawn half-way, its tip in the cyst's middle: the tunnel becomes a dent (genus 1 -> 0),
+// and back.
+TEST(WarmStartPipeline, GenusFollowsANeedleWithdrawnHalfWay) { follow_needle_switch(1.0f, 0.0f); }
+
+TEST(WarmStartPipeline, GenusFollowsANeedlePushedThrough) { follow_needle_switch(0.0f, 1.0f); }
 
 // The volume's voxels moved by `shift` (circularly: the simple phantom's border is tissue).
 volume::Volume shifted(const volume::Volume& v, const Vec3i& shift) {
