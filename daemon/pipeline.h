@@ -73,8 +73,10 @@ struct PipelineConfig {
   /// Surface tracking (issue 17): a warm volume fits the previous result's surface to this
   /// volume's wall (segment::fit_to_wall) instead of inflating a balloon and reconstructing, when
   /// the checks of daemon/internal/track.h pass; at most this many volumes in a row, then a cold
-  /// start (the chain's balloon is too old to start from), which anchors the next. 0 = off.
-  int track_max_chain = 20;
+  /// start (the chain's balloon is too old to start from), which anchors the next (the daemon
+  /// publishes the chain's last volume first: docs/tuning.md). 10: at 10 volumes/s chains of 20
+  /// drifted out in the needle's shadow until the open patch refused them. 0 = off.
+  int track_max_chain = 10;
   bool want_labels = true;      // label volume on the input grid (inside = 1); seed tracking
                                 // does not need it (deepest_interior_mm comes from χ)
   bool want_indicator = false;  // the indicator function χ as a Float32 volume (for .vdb output)

@@ -114,15 +114,12 @@ std::vector<int> label_components(const volume::Volume& smoothed, const InsideRe
 
 }  // namespace
 
-BrightStructure bright_structure(const volume::Volume& smoothed, const InsideRegion& region) {
-  std::vector<long> sizes;
-  const std::vector<int> label = label_components(smoothed, region, sizes);
+namespace {
+
+// Component `c` of `label` (label_components) as a structure.
+BrightStructure component(const volume::Volume& smoothed, const InsideRegion& region,
+                          const std::vector<int>& label, int c) {
   BrightStructure s;
-  if (sizes.empty()) return s;
-  const auto largest = std::max_element(sizes.begin(), sizes.end());
-  const long all = std::accumulate(sizes.begin(), sizes.end(), 0L);
-  if (2 * *largest < all) return s;  // the speckle of a dark inside, not one structure
-  const int c = static_cast<int>(largest - sizes.begin());
   const Vec3i n = region.hi - region.lo + Vec3i::Ones();
   Vec3i lo = region.hi, hi = region.lo;
   for (int z = region.lo.z(); z <= region.hi.z(); ++z)
@@ -139,9 +136,41 @@ BrightStructure bright_structure(const volume::Volume& smoothed, const InsideReg
   return s;
 }
 
+}  // namespace
+
+BrightStructure bright_structure(const volume::Volume& smoothed, const InsideRegion& region) {
+  std::vector<long> sizes;
+  const std::vector<int> label = label_components(smoothed, region, sizes);
+  if (sizes.empty()) return {};
+  const auto largest = std::max_element(sizes.begin(), sizes.end());
+  const long all = std::accumulate(sizes.begin(), sizes.end(), 0L);
+  if (2 * *largest < all) return {};  // the speckle of a dark inside, not one structure
+  return component(smoothed, region, label, static_cast<int>(largest - sizes.begin()));
+}
+
+BrightStructure deepest_bright_structure(const volume::Volume& smoothed,
+                                         const InsideRegion& region) {
+  std::vector<long> sizes;
+  const std::vector<int> label = label_components(smoothed, region, sizes);
+  if (sizes.empty()) return {};
+  std::vector<long> deep(sizes.size(), 0);
+  const Vec3i n = region.hi - region.lo + Vec3i::Ones();
+  for (int z = region.lo.z(); z <= region.hi.z(); ++z)
+    for (int y = region.lo.y(); y <= region.hi.y(); ++y)
+      for (int x = region.lo.x(); x <= region.hi.x(); ++x) {
+        const int c = label[(std::size_t(z - region.lo.z()) * n.y() + (y - region.lo.y())) * n.x() +
+                            (x - region.lo.x())];
+        if (c >= 0 && deep_inside(smoothed, region, Vec3i(x, y, z))) ++deep[c];
+      }
+  return component(smoothed, region, label,
+                   static_cast<int>(std::max_element(deep.begin(), deep.end()) - deep.begin()));
+}
+
+bool solid_inside(const BrightStructure& structure) { return structure.deep_vox > kLeastDeepVox; }
+
 bool passed_over(const BrightStructure& structure, const InsideRegion& region) {
   const int region_extent = (region.hi - region.lo + Vec3i::Ones()).maxCoeff();
-  return structure.deep_vox > kLeastDeepVox &&
+  return solid_inside(structure) &&
          4 * structure.deep_vox >= static_cast<long>(structure.voxels.size()) &&
          2 * structure.extent_vox.maxCoeff() >= region_extent;
 }

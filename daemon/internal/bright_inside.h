@@ -33,9 +33,17 @@ struct BrightStructure {
 };
 BrightStructure bright_structure(const volume::Volume& smoothed, const InsideRegion& region);
 
-/// Whether the surface passed over the structure (issue 15): over 40 deep voxels, at least a
-/// quarter of its voxels deep (solid, not a shell along the surface's inside), and as long as
-/// half the region's box (across the target, not a cluster of bright grains).
+/// The set of those with the most deep voxels, however many others there are: a needle pushed on
+/// from a dent, beside the thin bright shell inside a tracked surface that sits on the wall.
+BrightStructure deepest_bright_structure(const volume::Volume& smoothed,
+                                         const InsideRegion& region);
+
+/// Whether the structure is more than the odd bright grain inside: over 40 deep voxels.
+bool solid_inside(const BrightStructure& structure);
+
+/// Whether the surface passed over the structure (issue 15): solid_inside, at least a quarter
+/// of its voxels deep (not a shell along the surface's inside), and as long as half the
+/// region's box (across the target, not a cluster of bright grains).
 bool passed_over(const BrightStructure& structure, const InsideRegion& region);
 
 /// Oriented samples on the structure's walls: at every face between one of its voxels and a dark

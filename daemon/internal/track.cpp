@@ -27,6 +27,14 @@ constexpr double kMostInsideMismatch = 0.0075;
 // tunnel adds 6.6-7.5 % of a cyst's area; a breathing 128³ cyst-needle's patch by the needle
 // varies by up to 3 % (0.6-3.6 %).
 constexpr float kMostOpenGrowth = 0.03f;
+// How much it may grow from the last volume's: a needle withdrawn half-way adds 3.0 % at once
+// (echo 96³), within the limit above; breathing moves it by up to 1.2 % from one volume to the
+// next (echo 96³ at 10 volumes/s).
+constexpr float kMostOpenJump = 0.02f;
+// A bright set with this share of the inside's voxels deep inside the tracked surface is a needle
+// that came in: half of one pushed on from a dent has 0.6-0.9 % of a 96³ cyst's (simple, echo),
+// a whole one more; echo speckle at most 0.14 % (48 voxels, a 40-volume 96³ stream).
+constexpr double kLeastDeepBrightShare = 0.003;
 // Share of the area the fit may turn over (triangles whose normal reversed): marching cubes'
 // slivers flip under any move (0.1-0.5 % of a 128³ cyst's area), a fold along the normals where
 // the wall moved further than the surface's curvature allows turns more, and the surface is
@@ -196,6 +204,9 @@ std::string track_surface(const volume::Volume& input, const Vec3f& seed_mm,
   if (tracked.open_patch > previous.tracking.open_patch_base + kMostOpenGrowth)
     return "open patch " + percent(tracked.open_patch) + " from " +
            percent(previous.tracking.open_patch_base);
+  if (previous.open_patch >= 0.0f && tracked.open_patch > previous.open_patch + kMostOpenJump)
+    return "open patch " + percent(tracked.open_patch) + " from " + percent(previous.open_patch) +
+           " on the last volume";
   const auto t_labels = Clock::now();
   if (std::string why =
           label_consistently(input, buffers.smoothed, previous, seed_mm, config, folded, tracked);
@@ -203,9 +214,13 @@ std::string track_surface(const volume::Volume& input, const Vec3f& seed_mm,
     return why;
   const InsideRegion inside =
       inside_labels(*tracked.labels, mesh::bounding_box(tracked.mesh), levels);
-  const BrightStructure bright = bright_structure(buffers.smoothed, inside);
-  if (passed_over(bright, inside))
-    return "a bright structure inside, " + std::to_string(bright.voxels.size()) + " voxels";
+  const BrightStructure bright = deepest_bright_structure(buffers.smoothed, inside);
+  // Not only one across the target: a needle pushed on from a dent through the far wall adds
+  // half of one (which the balloon, not the tracked surface, must open).
+  const double inside_vox = tracked.enclosed_volume_ml * 1e3 / input.spacing_mm().prod();
+  if (solid_inside(bright) &&
+      static_cast<double>(bright.deep_vox) > kLeastDeepBrightShare * inside_vox)
+    return "a bright structure inside, " + std::to_string(bright.deep_vox) + " voxels deep";
   if (!config.want_labels) tracked.labels.reset();
   tracked.timings.labels_ms = ms_since(t_labels) - tracked.timings.reconstruct_ms;
   judge(tracked, "");

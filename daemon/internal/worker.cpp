@@ -237,8 +237,9 @@ void Worker::process(QueuedVolume item, PipelineBuffers& buffers, int lanes) {
   const bool refresh_due = end_volume(seq, input, *start, result);
   const std::optional<WarmStart> tracked =
       refresh_due ? std::optional(warm_start_from(result, 0.0f)) : std::nullopt;
-  if (result.tracking.chain == 1 && !start->anchor_note.empty())
-    line["start_reason"] = result.start_reason + " (" + start->anchor_note + ")";
+  if (!start->anchor_note.empty())  // (this volume started from a refreshed anchor)
+    line["start_reason"] =
+        line["start_reason"].get<std::string>() + " (" + start->anchor_note + ")";
   describe_result(result, line);
   context_.stats.count_start(result.warm_start);
 

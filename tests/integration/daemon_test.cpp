@@ -527,7 +527,7 @@ void run_tracked_echo_cyst_needle(const std::string& name, int lanes) {
   // Most volumes fit the last surface instead of a balloon (52 of 60 when this was written; the
   // rest start from the previous balloon, or cold after a refused warm start).
   EXPECT_GE(tracked, kVolumes / 2);
-  // A chain at its length (20) is re-anchored by the balloon after its last volume went out, and
+  // A chain at its length (10) is re-anchored by the balloon after its last volume went out, and
   // goes on from there: no volume starts cold for it.
   EXPECT_GE(refreshed, 1);
   EXPECT_EQ(chain_end_colds, 0);
