@@ -33,8 +33,9 @@ struct BrightStructure {
 };
 BrightStructure bright_structure(const volume::Volume& smoothed, const InsideRegion& region);
 
-/// The set of those with the most deep voxels, however many others there are: a needle pushed on
-/// from a dent, beside the thin bright shell inside a tracked surface that sits on the wall.
+/// Of the same 26-connected sets, the one with the most deep voxels, however many others there
+/// are: a needle pushed on from a dent, beside the thin bright shell inside a tracked surface
+/// that sits on the wall.
 BrightStructure deepest_bright_structure(const volume::Volume& smoothed,
                                          const InsideRegion& region);
 

@@ -39,10 +39,10 @@ class Shape {
   /// Signed distance to the target surface in mm (negative inside; exact for sphere and tori,
   /// a close bound for ellipsoids), at the spec's time.
   float target_sdf_mm(const Vec3f& p_mm) const;
-  /// Distance to the needle surface in mm (negative inside the needle); FLT_MAX if no needle.
   bool has_needle() const { return needle_.has_value(); }
   /// Whether the needle goes through the target and out (cyst-needle: its tip outside the cyst).
   bool needle_through() const;
+  /// Distance to the needle surface in mm (negative inside the needle); FLT_MAX if no needle.
   float needle_sdf_mm(const Vec3f& p_mm) const;
   /// Both distances at once (the per-voxel hot path: the breathing transform is undone once).
   void evaluate_mm(const Vec3f& p_mm, float& target_sdf_mm, float& needle_sdf_mm) const;
