@@ -2,12 +2,14 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <nlohmann/json.hpp>
 #include <sstream>
+#include <stdexcept>
 #include <string>
 
 #include "sim/internal/shapes.h"
@@ -84,6 +86,31 @@ TEST(SimTopology, CystWithoutItsNeedleHasGenusZero) {
     differ += with.image.u8()[i] != without.image.u8()[i];
   EXPECT_GT(differ, 0u);
   EXPECT_LT(differ, with.image.u8().size() / 4);
+}
+
+// The needle withdrawn half-way (its tip in the cyst's middle): a dent, genus 0 in the truth
+// too, and the cyst's voxels between those of the cyst pierced and of the cyst alone.
+TEST(SimTopology, NeedleWithdrawnHalfWayLeavesADent) {
+  PhantomSpec spec = spec_for("cyst-needle", 64);
+  const auto inside = [](const Phantom& p) {
+    return std::count_if(p.truth.u8().begin(), p.truth.u8().end(), [](auto v) { return v; });
+  };
+  spec.needle_reach = 0.0f;
+  const Phantom half = make_phantom(spec);
+  EXPECT_EQ(half.genus, 0);
+  const auto topo = solid_topology(half.truth);
+  EXPECT_EQ(topo.components, 1);
+  EXPECT_EQ(topo.cavities, 0);
+  EXPECT_EQ(topo.tunnels(), 0);
+  spec.needle_reach = 1.0f;
+  const auto through = inside(make_phantom(spec));
+  spec.needle = false;
+  const auto alone = inside(make_phantom(spec));
+  EXPECT_GT(inside(half), through);
+  EXPECT_LT(inside(half), alone);
+  spec.needle = true;
+  spec.needle_reach = 1.5f;
+  EXPECT_THROW(make_phantom(spec), std::invalid_argument);
 }
 
 INSTANTIATE_TEST_SUITE_P(Phantoms, SimTruthTopology,
