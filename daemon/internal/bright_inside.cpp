@@ -69,68 +69,73 @@ bool deep_inside(const volume::Volume& smoothed, const InsideRegion& region, con
   return true;
 }
 
-// The bright voxels inside, labelled by 26-connected component on the region's box: -1 none,
-// else the component's number; `sizes` gets each component's voxel count.
-std::vector<int> label_components(const volume::Volume& smoothed, const InsideRegion& region,
-                                  std::vector<long>& sizes) {
+// Voxel v's place in a vector over the region's box.
+std::size_t box_index(const InsideRegion& region, const Vec3i& v) {
   const Vec3i n = region.hi - region.lo + Vec3i::Ones();
-  if ((n.array() <= 0).any()) return {};  // (a surface outside the grid: no box)
-  const auto at = [&](const Vec3i& v) {
-    const Vec3i r = v - region.lo;
-    return (std::size_t(r.z()) * n.y() + r.y()) * n.x() + r.x();
-  };
-  std::vector<int> label(std::size_t(n.prod()), -2);  // -2: not bright inside
-  std::vector<Vec3i> bright;  // (the inside test samples χ: once per voxel)
+  const Vec3i r = v - region.lo;
+  return (std::size_t(r.z()) * n.y() + r.y()) * n.x() + r.x();
+}
+
+// The bright voxels inside, labelled by 26-connected component on the region's box (label: -1
+// none, else the component's number), with each component's voxel and deep voxel counts.
+struct Components {
+  std::vector<int> label;
+  std::vector<long> size, deep;
+};
+
+Components label_components(const volume::Volume& smoothed, const InsideRegion& region) {
+  Components out;
+  const Vec3i n = region.hi - region.lo + Vec3i::Ones();
+  if ((n.array() <= 0).any()) return out;  // (a surface outside the grid: no box)
+  std::vector<int>& label = out.label;
+  label.assign(std::size_t(n.prod()), -2);  // -2: not bright inside
+  std::vector<Vec3i> bright;                // (the inside test samples χ: once per voxel)
   for_bright_inside(smoothed, region, [&](const Vec3i& v) {
-    label[at(v)] = -3;  // bright, not labelled yet
+    label[box_index(region, v)] = -3;  // bright, not labelled yet
     bright.push_back(v);
   });
   std::vector<Vec3i> stack;
   for (const Vec3i& start : bright) {
-    if (label[at(start)] != -3) continue;
-    const int c = static_cast<int>(sizes.size());
-    sizes.push_back(0);
-    label[at(start)] = c;
+    if (label[box_index(region, start)] != -3) continue;
+    const int c = static_cast<int>(out.size.size());
+    out.size.push_back(0);
+    out.deep.push_back(0);
+    label[box_index(region, start)] = c;
     stack.assign(1, start);
     while (!stack.empty()) {
       const Vec3i v = stack.back();
       stack.pop_back();
-      ++sizes[c];
+      ++out.size[c];
+      out.deep[c] += deep_inside(smoothed, region, v) ? 1 : 0;
       for (int dz = -1; dz <= 1; ++dz)
         for (int dy = -1; dy <= 1; ++dy)
           for (int dx = -1; dx <= 1; ++dx) {
             const Vec3i q = v + Vec3i(dx, dy, dz);
             if ((q.array() < region.lo.array()).any() || (q.array() > region.hi.array()).any() ||
-                label[at(q)] != -3)
+                label[box_index(region, q)] != -3)
               continue;
-            label[at(q)] = c;
+            label[box_index(region, q)] = c;
             stack.push_back(q);
           }
     }
   }
   for (int& l : label) l = l >= 0 ? l : -1;
-  return label;
+  return out;
 }
 
-}  // namespace
-
-namespace {
-
-// Component `c` of `label` (label_components) as a structure.
-BrightStructure component(const volume::Volume& smoothed, const InsideRegion& region,
-                          const std::vector<int>& label, int c) {
+// Component `c` as a structure.
+BrightStructure component(const InsideRegion& region, const Components& components, int c) {
   BrightStructure s;
-  const Vec3i n = region.hi - region.lo + Vec3i::Ones();
+  s.deep_vox = components.deep[c];
   Vec3i lo = region.hi, hi = region.lo;
   for (int z = region.lo.z(); z <= region.hi.z(); ++z)
     for (int y = region.lo.y(); y <= region.hi.y(); ++y)
       for (int x = region.lo.x(); x <= region.hi.x(); ++x) {
-        const Vec3i r = Vec3i(x, y, z) - region.lo;
-        if (label[(std::size_t(r.z()) * n.y() + r.y()) * n.x() + r.x()] != c) continue;
-        s.voxels.emplace_back(x, y, z);
-        lo = lo.cwiseMin(s.voxels.back());
-        hi = hi.cwiseMax(s.voxels.back());
-        s.deep_vox += deep_inside(smoothed, region, s.voxels.back()) ? 1 : 0;
+        const Vec3i v(x, y, z);
+        if (components.label[box_index(region, v)] != c) continue;
+        s.voxels.push_back(v);
+        lo = lo.cwiseMin(v);
+        hi = hi.cwiseMax(v);
       }
   s.extent_vox = hi - lo + Vec3i::Ones();
   return s;
@@ -139,30 +144,21 @@ BrightStructure component(const volume::Volume& smoothed, const InsideRegion& re
 }  // namespace
 
 BrightStructure bright_structure(const volume::Volume& smoothed, const InsideRegion& region) {
-  std::vector<long> sizes;
-  const std::vector<int> label = label_components(smoothed, region, sizes);
-  if (sizes.empty()) return {};
-  const auto largest = std::max_element(sizes.begin(), sizes.end());
-  const long all = std::accumulate(sizes.begin(), sizes.end(), 0L);
+  const Components components = label_components(smoothed, region);
+  const std::vector<long>& size = components.size;
+  if (size.empty()) return {};
+  const auto largest = std::max_element(size.begin(), size.end());
+  const long all = std::accumulate(size.begin(), size.end(), 0L);
   if (2 * *largest < all) return {};  // the speckle of a dark inside, not one structure
-  return component(smoothed, region, label, static_cast<int>(largest - sizes.begin()));
+  return component(region, components, static_cast<int>(largest - size.begin()));
 }
 
 BrightStructure deepest_bright_structure(const volume::Volume& smoothed,
                                          const InsideRegion& region) {
-  std::vector<long> sizes;
-  const std::vector<int> label = label_components(smoothed, region, sizes);
-  if (sizes.empty()) return {};
-  std::vector<long> deep(sizes.size(), 0);
-  const Vec3i n = region.hi - region.lo + Vec3i::Ones();
-  for (int z = region.lo.z(); z <= region.hi.z(); ++z)
-    for (int y = region.lo.y(); y <= region.hi.y(); ++y)
-      for (int x = region.lo.x(); x <= region.hi.x(); ++x) {
-        const int c = label[(std::size_t(z - region.lo.z()) * n.y() + (y - region.lo.y())) * n.x() +
-                            (x - region.lo.x())];
-        if (c >= 0 && deep_inside(smoothed, region, Vec3i(x, y, z))) ++deep[c];
-      }
-  return component(smoothed, region, label,
+  const Components components = label_components(smoothed, region);
+  const std::vector<long>& deep = components.deep;
+  if (deep.empty()) return {};
+  return component(region, components,
                    static_cast<int>(std::max_element(deep.begin(), deep.end()) - deep.begin()));
 }
 

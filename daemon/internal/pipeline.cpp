@@ -110,6 +110,13 @@ void smooth_stage(const volume::Volume& input, const Vec3f& seed_mm, const Pipel
   result.timings.smooth_ms = ms_since(t);
 }
 
+reconstruct::PoissonOptions poisson_options(const PipelineConfig& config,
+                                            const volume::Volume& input) {
+  reconstruct::PoissonOptions poisson = config.poisson;
+  if (config.cell_from_voxel) poisson.cell_mm = input.spacing_mm().minCoeff();
+  return poisson;
+}
+
 }  // namespace internal
 
 namespace {
@@ -187,8 +194,7 @@ std::string surface_stage(const volume::Volume& input, const volume::Volume& smo
   if (samples.points.size() < kMinSamples)
     return "the balloon left only " + std::to_string(samples.points.size()) +
            " oriented points after the opening";
-  reconstruct::PoissonOptions poisson = config.poisson;
-  if (config.cell_from_voxel) poisson.cell_mm = input.spacing_mm().minCoeff();
+  const reconstruct::PoissonOptions poisson = internal::poisson_options(config, input);
   surface = reconstruct::reconstruct_surface(samples, seed_mm, poisson);
   if (!surface.mesh.triangles.empty())
     result.bright_inside_opened = internal::open_bright_inside(smoothed, samples, seed_mm, poisson,

@@ -1,7 +1,7 @@
 #pragma once
 /// @file
 /// @brief The per-volume pipeline's stages (daemon/internal/pipeline.cpp), for the second opinion
-/// and the coarse retry (opinions.h), which run them again.
+/// and the coarse retry (opinions.h), which run them again, and surface tracking (track.h).
 
 #include <cstdint>
 #include <stop_token>
@@ -18,6 +18,11 @@ namespace sonomesh::daemon::internal {
 void smooth_stage(const volume::Volume& input, const Vec3f& seed_mm, const PipelineConfig& config,
                   PipelineBuffers& buffers, std::vector<std::uint8_t>& no_data,
                   PipelineResult& result);
+
+/// The reconstruction's options for `input`: the configured ones, on cells of its finest spacing
+/// when `config.cell_from_voxel`.
+reconstruct::PoissonOptions poisson_options(const PipelineConfig& config,
+                                            const volume::Volume& input);
 
 /// §1-5 and the second pass, after the smoothing: the balloon (warm, or cold), the surface, the
 /// reinflation. Returns the error, empty if there is a surface.

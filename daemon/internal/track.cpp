@@ -9,6 +9,7 @@
 
 #include "daemon/internal/bright_inside.h"
 #include "daemon/internal/clock.h"
+#include "daemon/internal/stages.h"
 #include "daemon/internal/target_image.h"
 
 namespace sonomesh::daemon::internal {
@@ -112,11 +113,9 @@ constexpr float kCoarseCells = 1.25f;
 std::optional<reconstruct::SurfaceResult> remade(
     const volume::Volume& input, const volume::Volume& smoothed, const segment::Mesh& crossed,
     const PipelineResult& previous, const Vec3f& seed_mm, const PipelineConfig& config) {
-  reconstruct::PoissonOptions poisson = config.poisson;
-  if (config.cell_from_voxel) poisson.cell_mm = input.spacing_mm().minCoeff();
   const mesh::PointCloud samples = mesh::oriented_samples(crossed);
   for (const float scale : {kCoarseCells, 1.0f}) {
-    reconstruct::PoissonOptions scaled = poisson;
+    reconstruct::PoissonOptions scaled = poisson_options(config, input);
     scaled.cell_mm *= scale;
     reconstruct::SurfaceResult s = reconstruct::reconstruct_surface(samples, seed_mm, scaled);
     if (s.mesh.triangles.empty() || !s.seed_enclosed || !s.topology.manifold ||

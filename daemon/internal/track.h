@@ -13,8 +13,9 @@ namespace sonomesh::daemon::internal {
 /// Fits `previous`'s surface to the wall in `buffers.smoothed` (the pipeline's wall fit, repeated
 /// until it settles) and checks the result: hardly any of its area folded over, no larger patch
 /// looking into the target's inside than the chain's first result had (a needle withdrawn leaves
-/// its tunnel open), labels that agree with the volume it encloses (else it crossed itself, and
-/// is reconstructed from its own samples once), no bright structure inside (a needle inserted,
+/// its tunnel open) nor one that jumped since the last volume (withdrawn half-way), labels that
+/// agree with the volume it encloses (else it crossed itself, and is reconstructed from its own
+/// samples once), no bright structure deep inside (a needle inserted or pushed on,
 /// bright_inside.h), and an ok verdict. The balloon, its statistics and the topology are carried
 /// over. Returns why tracking was refused, or empty when `result` holds the judged tracked result
 /// (labels included when `config.want_labels`).

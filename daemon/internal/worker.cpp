@@ -234,9 +234,10 @@ void Worker::process(QueuedVolume item, PipelineBuffers& buffers, int lanes) {
     return fail(item, aborted ? "shutdown: aborted by a second signal" : result.error,
                 std::move(line));
   }
-  const bool refresh_due = end_volume(seq, input, *start, result);
-  const std::optional<WarmStart> tracked =
-      refresh_due ? std::optional(warm_start_from(result, 0.0f)) : std::nullopt;
+  // The labels go to the outputs only: kept with the result for the next volume, they were
+  // copied (a volume's size) to be dropped.
+  std::optional<volume::Volume> labels = std::move(result.labels);
+  const std::optional<WarmStart> refresh_from = end_volume(seq, input, *start, result);
   if (!start->anchor_note.empty())  // (this volume started from a refreshed anchor)
     line["start_reason"] =
         line["start_reason"].get<std::string>() + " (" + start->anchor_note + ")";
@@ -256,7 +257,7 @@ void Worker::process(QueuedVolume item, PipelineBuffers& buffers, int lanes) {
   // The outputs are in the input's world frame (LPS mm, DESIGN.md "Geometry and files"): the
   // mesh mapped there, the labels given the input's direction (they share its grid and origin).
   v.mesh = internal::mesh_to_world(result.mesh, input);
-  v.labels = std::move(result.labels);
+  v.labels = std::move(labels);
   if (v.labels) v.labels->set_direction(input.direction());
   v.timings = result.timings;
   v.seed_grid_mm = seed_mm;
@@ -264,7 +265,7 @@ void Worker::process(QueuedVolume item, PipelineBuffers& buffers, int lanes) {
   const std::shared_ptr<const volume::Volume> kept_input = v.input;
   out.line = std::move(line);
   out_.push(std::move(out));
-  if (tracked) refresh_anchor(seq, *kept_input, *start, seed_mm, *tracked, buffers);
+  if (refresh_from) refresh_anchor(seq, *kept_input, *start, seed_mm, *refresh_from, buffers);
 }
 
 // At the chain's length the balloon segments the volume just published once more, its tracked
@@ -290,7 +291,8 @@ void Worker::refresh_anchor(std::uint64_t sequence, const volume::Volume& input,
   refresh_busy_ = false;
   if (anchor_ != start.anchor) return;  // the operator chose another object meanwhile
   ++anchor_;
-  if (!fresh.ok || !fresh.quality_ok || fresh.mesh.vertices.empty()) {
+  if (!fresh.ok || !fresh.quality_ok || fresh.mesh.vertices.empty() ||
+      fresh.balloon.vertices.empty()) {  // (keep_for_warm_start keeps neither of the last two)
     previous_.reset();
     spdlog::warn("sequence {}: the balloon's refresh was {}; the next volume starts cold", sequence,
                  fresh.ok ? "suspect" : "not made: " + fresh.error);
@@ -306,9 +308,10 @@ void Worker::refresh_anchor(std::uint64_t sequence, const volume::Volume& input,
 
 // A result older than the state's (the other lane's newer volume finished first) is still
 // checked against it for a genus change, but does not set it back, nor does one begun before the
-// anchor was refreshed. Returns whether this lane refreshes the anchor (refresh_anchor).
-bool Worker::end_volume(std::uint64_t sequence, const volume::Volume& input, const Start& start,
-                        PipelineResult& result) {
+// anchor was refreshed. Returns the warm start kept when this lane is to refresh the anchor
+// (refresh_anchor).
+std::optional<WarmStart> Worker::end_volume(std::uint64_t sequence, const volume::Volume& input,
+                                            const Start& start, PipelineResult& result) {
   std::lock_guard lock(state_mutex_);
   const bool newest = !state_sequence_ || sequence >= *state_sequence_;
   // (A cold start after a refused tracking, or after a tracked chain, leaves a fresh result to
@@ -317,7 +320,7 @@ bool Worker::end_volume(std::uint64_t sequence, const volume::Volume& input, con
                        result.tracking.refused.empty() && !result.tracking.balloon_stale;
   since_refused_ = refused ? 0 : std::min(since_refused_, 1 << 29) + 1;
   flag_genus_change(start.seed, result, newest);
-  if (!newest) return false;
+  if (!newest) return std::nullopt;
   state_sequence_ = sequence;
   std::optional<SeedMm> deepest;
   if (result.deepest_interior_mm) {
@@ -325,13 +328,14 @@ bool Worker::end_volume(std::uint64_t sequence, const volume::Volume& input, con
     deepest = SeedMm{d.x(), d.y(), d.z()};
   }
   seeds_.on_result(deepest, override_waiting());
-  if (start.anchor != anchor_) return false;
+  if (start.anchor != anchor_) return std::nullopt;
   keep_for_warm_start(input, result);
   const int chain_end = start.config.pipeline.track_max_chain;
-  if (refresh_busy_ || !result.quality_ok || result.tracking.chain == 0 ||
+  if (!previous_ || refresh_busy_ || !result.quality_ok || result.tracking.chain == 0 ||
       result.tracking.chain < chain_end)
-    return false;
-  return refresh_busy_ = true;
+    return std::nullopt;
+  refresh_busy_ = true;
+  return previous_->warm;
 }
 
 // The previous warm start, copied (another lane may start from it too); this volume's result

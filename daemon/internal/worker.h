@@ -56,8 +56,8 @@ class Worker {
   void refresh_anchor(std::uint64_t sequence, const volume::Volume& input, const Start& start,
                       const Vec3f& seed_mm, const WarmStart& tracked, PipelineBuffers& buffers);
   // The state the next volumes start from, advanced by a result newer than the one it holds.
-  bool end_volume(std::uint64_t sequence, const volume::Volume& input, const Start& start,
-                  PipelineResult& result);
+  std::optional<WarmStart> end_volume(std::uint64_t sequence, const volume::Volume& input,
+                                      const Start& start, PipelineResult& result);
   std::optional<SeedCandidate> pick_seed(const volume::Volume& input, const RunConfig& config,
                                          nlohmann::json& line);
   void fail(const QueuedVolume& item, const std::string& reason, nlohmann::json line);
