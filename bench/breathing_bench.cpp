@@ -2,7 +2,7 @@
 // reused buffers (as the daemon's worker runs it): per volume the reconstruction grid, the FFTW
 // plans made for it, the reconstruct stage's time, genus and Dice against the truth.
 //   breathing_bench [--phantom cyst-needle] [--size 128] [--spacing 0.4] [--volumes 40]
-//                   [--rate 10] [--warm [--track [--chain 20]]] [--quiet]
+//                   [--rate 10] [--warm [--track [--chain 10]]] [--quiet]
 // --warm: each volume's balloon starts inside the previous one's (daemon::WarmStart, 3 voxels in,
 // as the daemon's worker with a still target) and the seed is the previous deepest point, as the
 // daemon's worker runs it (issue 17).

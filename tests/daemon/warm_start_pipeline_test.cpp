@@ -5,7 +5,6 @@
 // the cold start segments it right.
 #include <gtest/gtest.h>
 
-#include <algorithm>
 #include <cstdio>
 #include <optional>
 
@@ -120,29 +119,27 @@ TEST(WarmStartPipeline, AgreesWithColdStartOnABreathingCystNeedle) {
   EXPECT_GE(starts.tracked, 2);  // (4 of 5 when this was written)
 }
 
-// The needle moved at volume 3 (`before` up to it, `after` from it, each a needle reach, or
-// no needle below -1): the genus must be the truth's on every volume from it on.
-void follow_needle_switch(float before, float after) {
+// The needle moved at volume 3 (`before` up to it, `after` from it, each a needle reach, unset
+// for no needle): the genus must be the truth's on every volume from it on.
+void follow_needle_switch(std::optional<float> before, std::optional<float> after) {
   Stream stream;
   for (int i = 0; i < 6; ++i) {
-    const float reach = i < 3 ? before : after;
+    const std::optional<float> reach = i < 3 ? before : after;
     const sim::Phantom p =
-        frame(0.1f * static_cast<float>(i), reach >= -1.0f, std::max(reach, -1.0f));
+        frame(0.1f * static_cast<float>(i), reach.has_value(), reach.value_or(1.0f));
     const PipelineResult r = stream.next(p);
     ASSERT_TRUE(r.ok) << "volume " << i << ": " << r.error;
-    std::printf("volume %d needle reach %.1f genus %d %s\n", i, reach, r.topology.genus,
-                (r.start_reason + " " + r.tracking.refused).c_str());
+    std::printf("volume %d needle reach %.1f genus %d %s\n", i, reach.value_or(-1.0f),
+                r.topology.genus, (r.start_reason + " " + r.tracking.refused).c_str());
     EXPECT_EQ(r.topology.genus, p.genus)
         << "volume " << i << (r.warm_start ? " (warm)" : " (cold: " + r.start_reason + ")");
     EXPECT_GE(internal::dice(*r.labels, p.truth), 0.95) << "volume " << i;
   }
 }
 
-constexpr float kNoNeedle = -2.0f;
+TEST(WarmStartPipeline, GenusFollowsAWithdrawnNeedle) { follow_needle_switch(1.0f, std::nullopt); }
 
-TEST(WarmStartPipeline, GenusFollowsAWithdrawnNeedle) { follow_needle_switch(1.0f, kNoNeedle); }
-
-TEST(WarmStartPipeline, GenusFollowsAnInsertedNeedle) { follow_needle_switch(kNoNeedle, 1.0f); }
+TEST(WarmStartPipeline, GenusFollowsAnInsertedNeedle) { follow_needle_switch(std::nullopt, 1.0f); }
 
 // Withdrawn half-way, its tip in the cyst's middle: the tunnel becomes a dent (genus 1 -> 0),
 // and back.
