@@ -6,6 +6,7 @@
 #include <thread>
 
 #include "daemon/internal/outputs.h"
+#include "daemon/internal/track.h"
 
 namespace sonomesh::daemon {
 
@@ -265,7 +266,32 @@ void Worker::process(QueuedVolume item, PipelineBuffers& buffers, int lanes) {
   const std::shared_ptr<const volume::Volume> kept_input = v.input;
   out.line = std::move(line);
   out_.push(std::move(out));
-  if (refresh_from) refresh_anchor(seq, *kept_input, *start, seed_mm, *refresh_from, buffers);
+  if (!refresh_from) return;
+  if (refresh_from->previous->tracking.chain < start->config.pipeline.track_max_chain)
+    return remake_anchor(seq, *kept_input, *start, seed_mm, *refresh_from->previous, buffers);
+  refresh_anchor(seq, *kept_input, *start, seed_mm, *refresh_from, buffers);
+}
+
+// A tracked surface that begins to cross itself (Tracking::crossing) is remade from its own
+// samples after it was published, not before: the remaking took 15-80 ms of a volume's latency
+// in the daemon. Its result becomes the anchor the next volumes track from, where no newer
+// result replaced this one meanwhile; one begun before from the crossing anchor is not kept.
+void Worker::remake_anchor(std::uint64_t sequence, const volume::Volume& input, const Start& start,
+                           const Vec3f& seed_mm, const PipelineResult& tracked,
+                           const PipelineBuffers& buffers) {
+  PipelineResult mended = tracked;
+  bool ok = false;
+  try {
+    ok = internal::remake_crossing(input, buffers.smoothed, seed_mm, start.config.pipeline, mended);
+  } catch (const std::exception& e) {
+    spdlog::warn("sequence {}: the crossing surface was not remade: {}", sequence, e.what());
+  }
+  std::lock_guard lock(state_mutex_);
+  refresh_busy_ = false;
+  if (!ok || anchor_ != start.anchor || state_sequence_ != sequence || !previous_) return;
+  ++anchor_;
+  previous_->warm.previous = std::make_shared<const PipelineResult>(std::move(mended));
+  previous_->note = "surface remade from its samples on sequence " + std::to_string(sequence);
 }
 
 // At the chain's length the balloon segments the volume just published once more, its tracked
@@ -308,8 +334,9 @@ void Worker::refresh_anchor(std::uint64_t sequence, const volume::Volume& input,
 
 // A result older than the state's (the other lane's newer volume finished first) is still
 // checked against it for a genus change, but does not set it back, nor does one begun before the
-// anchor was refreshed. Returns the warm start kept when this lane is to refresh the anchor
-// (refresh_anchor).
+// anchor was refreshed or remade. Returns the warm start kept when this lane is to refresh the
+// anchor at the chain's length (refresh_anchor) or remake a surface that begins to cross itself
+// (remake_anchor).
 std::optional<WarmStart> Worker::end_volume(std::uint64_t sequence, const volume::Volume& input,
                                             const Start& start, PipelineResult& result) {
   std::lock_guard lock(state_mutex_);
@@ -332,7 +359,7 @@ std::optional<WarmStart> Worker::end_volume(std::uint64_t sequence, const volume
   keep_for_warm_start(input, result);
   const int chain_end = start.config.pipeline.track_max_chain;
   if (!previous_ || refresh_busy_ || !result.quality_ok || result.tracking.chain == 0 ||
-      result.tracking.chain < chain_end)
+      (result.tracking.chain < chain_end && !result.tracking.crossing))
     return std::nullopt;
   refresh_busy_ = true;
   return previous_->warm;
