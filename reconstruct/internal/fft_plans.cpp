@@ -90,16 +90,23 @@ fftwf_plan get_plan(const std::array<int, 3>& dims, bool forward, int threads, b
     fftwf_free(cplx);
     throw std::bad_alloc();
   }
-  const unsigned flags = measure ? FFTW_MEASURE : FFTW_ESTIMATE;
   // FFTW is row-major: the last (fastest) FFTW dimension is our x.
-  fftwf_plan plan = forward ? fftwf_plan_dft_r2c_3d(dims[2], dims[1], dims[0], real, cplx, flags)
-                            : fftwf_plan_dft_c2r_3d(dims[2], dims[1], dims[0], cplx, real, flags);
+  const auto make = [&](unsigned flags) {
+    return forward ? fftwf_plan_dft_r2c_3d(dims[2], dims[1], dims[0], real, cplx, flags)
+                   : fftwf_plan_dft_c2r_3d(dims[2], dims[1], dims[0], cplx, real, flags);
+  };
+  // From the wisdom when it has the plan; the wisdom file is written again only for a plan it
+  // did not have (rewriting it for every plan cost a one-shot process a file of ~0.5 MB each).
+  const unsigned rigour = measure ? FFTW_MEASURE : FFTW_ESTIMATE;
+  fftwf_plan plan = make(rigour | FFTW_WISDOM_ONLY);
+  const bool learned = !plan;
+  if (!plan) plan = make(rigour);
   fftwf_free(real);
   fftwf_free(cplx);
   if (!plan) throw std::bad_alloc();
   ++c.stats.plans_created;
   c.plans.emplace(key, plan);
-  export_wisdom_locked();
+  if (learned) export_wisdom_locked();
   return plan;
 }
 

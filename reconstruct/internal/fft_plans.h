@@ -28,8 +28,8 @@ int fft_friendly_size(int n);
 
 /// Wisdom file: $SONOMESH_FFTW_WISDOM (set but empty: no wisdom file), else
 /// $XDG_CACHE_HOME/sonomesh/fftw-wisdom, else $HOME/.cache/sonomesh/fftw-wisdom; "" if none.
-/// The first plan of a process imports it; every newly made plan exports all wisdom to it (a
-/// temporary file renamed over it). An unreadable or unwritable file is skipped silently.
+/// The first plan of a process imports it; a plan the wisdom did not have exports all wisdom to
+/// it (a temporary file renamed over it). An unreadable or unwritable file is skipped silently.
 std::string fft_wisdom_path();
 /// Imports fft_wisdom_path() now (under the planner lock); false if there is none or it is bad.
 bool fft_import_wisdom();
