@@ -6,9 +6,14 @@
 // docs/results.md). Every block comes from malloc or aligned_alloc, so libstdc++'s default
 // operator delete (free) releases it, aligned or not; the array and nothrow forms call these two.
 // Sanitizer builds keep their runtime's own allocation functions.
+#include "daemon/huge_pages.h"
+
+#include <malloc.h>
 #include <sys/mman.h>
 
+#include <chrono>
 #include <cstddef>
+#include <cstdint>
 #include <cstdlib>
 #include <new>
 
@@ -56,4 +61,32 @@ void* operator new(std::size_t bytes) { return allocate_or_throw(bytes, 0); }
 void* operator new(std::size_t bytes, std::align_val_t alignment) {
   return allocate_or_throw(bytes, static_cast<std::size_t>(alignment));
 }
+
+namespace sonomesh::daemon {
+
+double keep_heap_warm(std::size_t reserve_mb) {
+  if (reserve_mb == 0) return 0.0;
+  const auto start = std::chrono::steady_clock::now();
+  const std::size_t bytes = reserve_mb << 20;
+  mallopt(M_ARENA_MAX, 1);
+  mallopt(M_MMAP_THRESHOLD, 256 << 20);
+  mallopt(M_TOP_PAD, static_cast<int>(bytes));
+  mallopt(M_TRIM_THRESHOLD, static_cast<int>(2 * bytes));
+  auto* block = static_cast<volatile char*>(std::malloc(bytes));
+  if (!block) return 0.0;
+  const auto first = (reinterpret_cast<std::uintptr_t>(block) + kHugePageBytes - 1) &
+                     ~std::uintptr_t{kHugePageBytes - 1};
+  if (bytes > 2 * kHugePageBytes)
+    ::madvise(reinterpret_cast<void*>(first), bytes - 2 * kHugePageBytes, MADV_HUGEPAGE);
+  for (std::size_t i = 0; i < bytes; i += 4096) block[i] = 1;  // (volatile: not elided)
+  std::free(const_cast<char*>(block));
+  return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start)
+      .count();
+}
+
+}  // namespace sonomesh::daemon
+#else
+namespace sonomesh::daemon {
+double keep_heap_warm(std::size_t) { return 0.0; }
+}  // namespace sonomesh::daemon
 #endif

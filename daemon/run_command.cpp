@@ -13,6 +13,7 @@
 #include <thread>
 
 #include "daemon/commands.h"
+#include "daemon/huge_pages.h"
 #include "daemon/internal/http_status.h"
 #include "daemon/internal/igtl_server.h"
 #include "daemon/internal/live_extras.h"
@@ -224,6 +225,8 @@ int run_daemon(const RunFlags& flags) {
     return 0;
   }
   if (!spdlog::get("sonomeshd")) setup_logging(config.log_level);
+  if (const double ms = keep_heap_warm(config.heap_reserve_mb); ms > 0.0)
+    spdlog::debug("heap: {} MB touched in {:.0f} ms", config.heap_reserve_mb, ms);
   const sigset_t signals = block_signals();
   bool live = false;
   const std::unique_ptr<LiveRunner> runner = make_runner(config, live);

@@ -29,7 +29,8 @@ struct RunConfig {
   std::optional<std::array<float, 3>> seed_mm;  // configured seed; unset: phantom / centre
   std::size_t queue_capacity = 2;               // volumes waiting for the worker
   std::size_t lanes = 0;  // volumes segmented at once; 0: two for a live source on two cores
-  std::string log_level = "info";  // trace, debug, info, warn, error
+  std::size_t heap_reserve_mb = 96;  // heap touched at start-up and kept (huge_pages.h)
+  std::string log_level = "info";    // trace, debug, info, warn, error
   // [http]
   std::string http_address = kDefaultHttpAddress;  // "off" disables the server
   bool http_explicit = false;      // set by --http / the file: a bind failure is fatal

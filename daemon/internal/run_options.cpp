@@ -93,15 +93,7 @@ std::vector<OptionSpec> daemon_options() {
   std::vector<OptionSpec> o;
   o.push_back(text("daemon", "source", "SOURCE URI (sim:, replay:, unix:, tcp:, usb:, v4l2:)",
                    REF(source)));
-  o.push_back({"daemon",
-               "out",
-               K::String,
-               "",
-               {},
-               {},
-               "output directory (journal, meshes)",
-               [](const RunConfig& c) -> OptionValue { return c.out.string(); },
-               [](RunConfig& c, const OptionValue& v) { c.out = std::get<std::string>(v); }});
+  o.push_back(text("daemon", "out", "output directory (journal, meshes)", REF(out)));
   o.push_back({"daemon",
                "seed_mm",
                K::Triple,
@@ -123,6 +115,9 @@ std::vector<OptionSpec> daemon_options() {
                   "volumes waiting for the worker", REF(queue_capacity)));
   o.push_back(num("daemon", "lanes", "volumes", closed(0, 2),
                   "segmented at once; 0: two for a live source on two cores", REF(lanes)));
+  o.push_back(num("daemon", "heap_reserve_mb", "MB", closed(0, 512),
+                  "heap touched at start-up, so the first volumes fault no pages; 0: off",
+                  REF(heap_reserve_mb)));
   o.push_back(choice(
       "daemon", "log_level", {"trace", "debug", "info", "warn", "error", "critical", "off"},
       "log level", [](RunConfig& c, const std::string& s) { c.log_level = s; },
