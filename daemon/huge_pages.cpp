@@ -11,6 +11,7 @@
 #include <malloc.h>
 #include <sys/mman.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cstddef>
 #include <cstdint>
@@ -64,14 +65,20 @@ void* operator new(std::size_t bytes, std::align_val_t alignment) {
 
 namespace sonomesh::daemon {
 
+constexpr int kHeapBlockBytes = 256 << 20;
+
+void tune_heap() {
+  mallopt(M_ARENA_MAX, 1);
+  mallopt(M_MMAP_THRESHOLD, kHeapBlockBytes);
+  mallopt(M_TRIM_THRESHOLD, kHeapBlockBytes);
+}
+
 double keep_heap_warm(std::size_t reserve_mb) {
   if (reserve_mb == 0) return 0.0;
   const auto start = std::chrono::steady_clock::now();
   const std::size_t bytes = reserve_mb << 20;
-  mallopt(M_ARENA_MAX, 1);
-  mallopt(M_MMAP_THRESHOLD, 256 << 20);
   mallopt(M_TOP_PAD, static_cast<int>(bytes));
-  mallopt(M_TRIM_THRESHOLD, static_cast<int>(2 * bytes));
+  mallopt(M_TRIM_THRESHOLD, std::max(kHeapBlockBytes, static_cast<int>(2 * bytes)));
   auto* block = static_cast<volatile char*>(std::malloc(bytes));
   if (!block) return 0.0;
   const auto first = (reinterpret_cast<std::uintptr_t>(block) + kHugePageBytes - 1) &
@@ -87,6 +94,7 @@ double keep_heap_warm(std::size_t reserve_mb) {
 }  // namespace sonomesh::daemon
 #else
 namespace sonomesh::daemon {
+void tune_heap() {}
 double keep_heap_warm(std::size_t) { return 0.0; }
 }  // namespace sonomesh::daemon
 #endif

@@ -7,12 +7,17 @@
 
 namespace sonomesh::daemon {
 
-/// For a process that segments volume after volume (`run`): one malloc arena for all threads,
-/// blocks up to 256 MiB from the heap rather than fresh mappings, freed memory kept up to
-/// `reserve_mb` (more is given back), and that much of the heap touched now, on huge pages. A
-/// fresh process otherwise faults in every page its first volumes allocate, and each lane's own
-/// arena again for itself. Returns the milliseconds it took; does nothing in sanitizer builds
-/// (their runtime allocates) or at 0.
+/// sonomeshd's malloc settings, for every subcommand: one arena for all threads, blocks up to
+/// 256 MiB from the heap rather than fresh mappings, and up to 256 MiB freed at the heap's top
+/// kept. A volume's stages then reuse the memory the stages before them freed, where each of
+/// their buffers was a fresh mapping to fault in, and the lanes and TBB's threads share one heap.
+/// Does nothing in sanitizer builds (their runtime allocates).
+void tune_heap();
+
+/// For a process that segments volume after volume (`run`), after tune_heap: `reserve_mb` of
+/// the heap touched now, on huge pages, and kept (freed memory beyond twice it is given back),
+/// so that the first volumes fault in no pages. Returns the milliseconds it took; nothing in
+/// sanitizer builds or at 0.
 double keep_heap_warm(std::size_t reserve_mb);
 
 }  // namespace sonomesh::daemon

@@ -3,8 +3,10 @@
 #include <exception>
 
 #include "daemon/commands.h"
+#include "daemon/huge_pages.h"
 
 int main(int argc, char** argv) {
+  sonomesh::daemon::tune_heap();
   CLI::App app{"sonomeshd: topologically correct surfaces from 3D ultrasound volumes"};
   app.require_subcommand(1);
   int exit_code = 0;
