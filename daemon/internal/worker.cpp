@@ -2,6 +2,7 @@
 
 #include <spdlog/spdlog.h>
 
+#include <algorithm>
 #include <cmath>
 #include <thread>
 
@@ -48,6 +49,15 @@ void describe_result(const PipelineResult& result, nlohmann::json& line) {
   line["quality_reasons"] = result.quality_reasons;
   line["stop_rule"] = result.stop_rule;
   line["second_opinion"] = result.second_opinion;
+}
+
+// The chain's length at which its anchor is refreshed (refresh_anchor): two volumes before the
+// length, so that the balloon's result (150-200 ms on one core) is there before the chain reaches
+// it; a chain tracked on past its length drifted until the open patch refused it (one cold start
+// in two daemon_bench runs at 10/s).
+int refresh_chain(const PipelineConfig& config) {
+  constexpr int kRefreshLead = 2;
+  return std::max(1, config.track_max_chain - kRefreshLead);
 }
 
 }  // namespace
@@ -267,7 +277,7 @@ void Worker::process(QueuedVolume item, PipelineBuffers& buffers, int lanes) {
   out.line = std::move(line);
   out_.push(std::move(out));
   if (!refresh_from) return;
-  if (refresh_from->previous->tracking.chain < start->config.pipeline.track_max_chain)
+  if (refresh_from->previous->tracking.chain < refresh_chain(start->config.pipeline))
     return remake_anchor(seq, *kept_input, *start, seed_mm, *refresh_from->previous, buffers);
   refresh_anchor(seq, *kept_input, *start, seed_mm, *refresh_from, buffers);
 }
@@ -294,11 +304,12 @@ void Worker::remake_anchor(std::uint64_t sequence, const volume::Volume& input, 
   previous_->note = "surface remade from its samples on sequence " + std::to_string(sequence);
 }
 
-// At the chain's length the balloon segments the volume just published once more, its tracked
-// result already out: the tracked surface drifts where the wall is faint (in the needle's shadow
-// +5 % of the volume over 30 volumes at 10/s) and this result re-anchors the chain, while the
-// other lane tracks on and no volume waits for a cold start. Not ok: the next volume starts cold.
-// The pipeline runs it as the cold start after a chain (`tracked` is at the chain's length).
+// Near the chain's length (refresh_chain) the balloon segments the volume just published once
+// more, its tracked result already out: the tracked surface drifts where the wall is faint (in
+// the needle's shadow +5 % of the volume over 30 volumes at 10/s) and this result re-anchors the
+// chain, while the other lane tracks on and no volume waits for a cold start. Not ok: the next
+// volume starts cold. The pipeline runs it as the cold start after a chain (its length set to
+// `tracked`'s chain).
 void Worker::refresh_anchor(std::uint64_t sequence, const volume::Volume& input, const Start& start,
                             const Vec3f& seed_mm, const WarmStart& tracked,
                             PipelineBuffers& buffers) {
@@ -357,9 +368,8 @@ std::optional<WarmStart> Worker::end_volume(std::uint64_t sequence, const volume
   seeds_.on_result(deepest, override_waiting());
   if (start.anchor != anchor_) return std::nullopt;
   keep_for_warm_start(input, result);
-  const int chain_end = start.config.pipeline.track_max_chain;
   if (!previous_ || refresh_busy_ || !result.quality_ok || result.tracking.chain == 0 ||
-      (result.tracking.chain < chain_end && !result.tracking.crossing))
+      (result.tracking.chain < refresh_chain(start.config.pipeline) && !result.tracking.crossing))
     return std::nullopt;
   refresh_busy_ = true;
   return previous_->warm;
