@@ -156,7 +156,7 @@ struct PipelineResult {
   /// refused, or not asked); whether the balloon started cold because the warm start's
   /// balloon was a tracked chain's first, too old to start from; and whether the tracked surface
   /// begins to cross itself (its inside by ray parity and its enclosed volume part), which the
-  /// daemon mends off the latency path by re-anchoring the chain after publishing.
+  /// daemon remakes from its own samples after publishing it, off the volume's latency.
   struct Tracking {
     int chain = 0;
     float open_patch_base = -1.0f;

@@ -53,8 +53,9 @@ void describe_result(const PipelineResult& result, nlohmann::json& line) {
 
 // The chain's length at which its anchor is refreshed (refresh_anchor): two volumes before the
 // length, so that the balloon's result (150-200 ms on one core) is there before the chain reaches
-// it; a chain tracked on past its length drifted until the open patch refused it (one cold start
-// in two daemon_bench runs at 10/s).
+// it; a chain tracked on past its length drifted until the open patch refused it (at 20/s cold
+// starts in two daemon_bench runs of three). Four volumes before: a refresh then fell on a volume
+// whose balloon came out suspect, and every cold start after it did too.
 int refresh_chain(const PipelineConfig& config) {
   constexpr int kRefreshLead = 2;
   return std::max(1, config.track_max_chain - kRefreshLead);
@@ -346,7 +347,7 @@ void Worker::refresh_anchor(std::uint64_t sequence, const volume::Volume& input,
 // A result older than the state's (the other lane's newer volume finished first) is still
 // checked against it for a genus change, but does not set it back, nor does one begun before the
 // anchor was refreshed or remade. Returns the warm start kept when this lane is to refresh the
-// anchor at the chain's length (refresh_anchor) or remake a surface that begins to cross itself
+// anchor near the chain's length (refresh_anchor) or remake a surface that begins to cross itself
 // (remake_anchor).
 std::optional<WarmStart> Worker::end_volume(std::uint64_t sequence, const volume::Volume& input,
                                             const Start& start, PipelineResult& result) {
