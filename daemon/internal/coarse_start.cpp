@@ -1,6 +1,7 @@
 // The coarse-to-fine cold start (coarse_start.h).
 #include "daemon/internal/coarse_start.h"
 
+#include <Eigen/Geometry>
 #include <algorithm>
 #include <chrono>
 #include <utility>
@@ -77,6 +78,24 @@ int build_pyramid(const volume::Volume& smoothed, const CoarseStartOptions& opti
   return levels;
 }
 
+double area_mm2(const segment::Mesh& m) {
+  double area = 0.0;
+  for (const auto& t : m.triangles)
+    area += 0.5 *
+            (m.vertices[t[1]] - m.vertices[t[0]]).cross(m.vertices[t[2]] - m.vertices[t[0]]).norm();
+  return area;
+}
+
+// `passes` bounded to `growth` times `coarse`'s area on `grid` (leak_bound's box-area share).
+segment::BalloonOptions bounded(segment::BalloonOptions passes, const segment::Mesh& coarse,
+                                const volume::Volume& grid, float growth) {
+  const volume::Vec3f e = grid.max_mm() - grid.min_mm();
+  const double box_mm2 = 2.0 * (e.x() * e.y() + e.y() * e.z() + e.z() * e.x());
+  passes.max_area_fraction =
+      std::min(passes.max_area_fraction, static_cast<float>(growth * area_mm2(coarse) / box_mm2));
+  return passes;
+}
+
 // One attempt: the cold balloon on level `top` of the pyramid (level 0 is `smoothed`), then a
 // warm pass on every finer level. Returns why it failed (then `balloon` is not to be used).
 std::string from_level(const volume::Volume& smoothed, const std::vector<volume::Volume>& pyramid,
@@ -97,7 +116,8 @@ std::string from_level(const volume::Volume& smoothed, const std::vector<volume:
   for (int level = top - 1; level >= 0; --level) {
     const float inset_mm = options.inset_vox * grid(level).spacing_mm().minCoeff();
     segment::BalloonResult finer = segment::inflate_balloon_from(
-        grid(level), balloon.mesh, seed_mm, passes,
+        grid(level), balloon.mesh, seed_mm,
+        bounded(passes, balloon.mesh, grid(level), options.max_area_growth),
         {.inset_mm = inset_mm, .start_stop = balloon.stop, .replay_vox = options.replay_vox}, stop);
     report.fine_ms += ms_since(t);
     t = Clock::now();
