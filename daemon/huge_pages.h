@@ -15,9 +15,9 @@ namespace sonomesh::daemon {
 void tune_heap();
 
 /// For a process that segments volume after volume (`run`), after tune_heap: `reserve_mb` of
-/// the heap touched now, on huge pages, and kept (freed memory beyond twice it is given back),
-/// so that the first volumes fault in no pages. Returns the milliseconds it took; nothing in
-/// sanitizer builds or at 0.
+/// the heap touched now, on huge pages, and kept (freed memory beyond twice it, at least 256 MiB,
+/// is given back), so that the first volumes fault in no pages. Returns the milliseconds it took;
+/// nothing in sanitizer builds or at 0.
 double keep_heap_warm(std::size_t reserve_mb);
 
 }  // namespace sonomesh::daemon
