@@ -69,6 +69,8 @@ int euler_characteristic(const Mesh& mesh);
 
 /// Topology::volume_ml alone: for a mesh whose vertices moved but whose connectivity did not.
 double enclosed_volume_ml(const Mesh& mesh);
+/// The sum of the triangles' areas (mm²).
+double surface_area_mm2(const Mesh& mesh);
 
 /// The axis-aligned box of a mesh's vertices (mm); lo = hi = 0 for a mesh without vertices.
 struct Box {

@@ -1,7 +1,6 @@
 // The coarse-to-fine cold start (coarse_start.h).
 #include "daemon/internal/coarse_start.h"
 
-#include <Eigen/Geometry>
 #include <algorithm>
 #include <chrono>
 #include <utility>
@@ -78,21 +77,14 @@ int build_pyramid(const volume::Volume& smoothed, const CoarseStartOptions& opti
   return levels;
 }
 
-double area_mm2(const segment::Mesh& m) {
-  double area = 0.0;
-  for (const auto& t : m.triangles)
-    area += 0.5 *
-            (m.vertices[t[1]] - m.vertices[t[0]]).cross(m.vertices[t[2]] - m.vertices[t[0]]).norm();
-  return area;
-}
-
 // `passes` bounded to `growth` times `coarse`'s area on `grid` (leak_bound's box-area share).
 segment::BalloonOptions bounded(segment::BalloonOptions passes, const segment::Mesh& coarse,
                                 const volume::Volume& grid, float growth) {
   const volume::Vec3f e = grid.max_mm() - grid.min_mm();
   const double box_mm2 = 2.0 * (e.x() * e.y() + e.y() * e.z() + e.z() * e.x());
   passes.max_area_fraction =
-      std::min(passes.max_area_fraction, static_cast<float>(growth * area_mm2(coarse) / box_mm2));
+      std::min(passes.max_area_fraction,
+               static_cast<float>(growth * mesh::surface_area_mm2(coarse) / box_mm2));
   return passes;
 }
 

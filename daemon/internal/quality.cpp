@@ -82,15 +82,6 @@ std::size_t on_sector_edge(const volume::Volume& input, const std::vector<std::u
   return n;
 }
 
-double area_mm2(const segment::Mesh& mesh) {
-  double sum = 0.0;
-  for (const auto& t : mesh.triangles)
-    sum += 0.5 * (mesh.vertices[t[1]] - mesh.vertices[t[0]])
-                     .cross(mesh.vertices[t[2]] - mesh.vertices[t[0]])
-                     .norm();
-  return sum;
-}
-
 // Mean of the smoothed image at p + n·d for d in [from, to] voxels, one sample per voxel.
 float mean_along(const volume::Volume& smoothed, const Vec3f& p, const Vec3f& n, float from_vox,
                  float to_vox, float vox_mm) {
@@ -147,8 +138,8 @@ float open_patch(const volume::Volume& smoothed, const segment::Mesh& surface, f
     if (looks_inside[i]) open.triangles.push_back(surface.triangles[i]);
   double largest_mm2 = 0.0;
   for (const segment::Mesh& patch : mesh::connected_components(open))
-    largest_mm2 = std::max(largest_mm2, area_mm2(patch));
-  const double total_mm2 = area_mm2(surface);
+    largest_mm2 = std::max(largest_mm2, mesh::surface_area_mm2(patch));
+  const double total_mm2 = mesh::surface_area_mm2(surface);
   return total_mm2 > 0.0 ? static_cast<float>(largest_mm2 / total_mm2) : -1.0f;
 }
 

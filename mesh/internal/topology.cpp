@@ -194,6 +194,16 @@ int euler_characteristic(const Mesh& mesh) {
 
 double enclosed_volume_ml(const Mesh& mesh) { return signed_volume_mm3(mesh) / 1000.0; }
 
+double surface_area_mm2(const Mesh& mesh) {
+  check_indices(mesh, "surface_area_mm2");
+  double area = 0.0;
+  for (const auto& t : mesh.triangles)
+    area += 0.5 * (mesh.vertices[t[1]] - mesh.vertices[t[0]])
+                      .cross(mesh.vertices[t[2]] - mesh.vertices[t[0]])
+                      .norm();
+  return area;
+}
+
 Box bounding_box(const Mesh& mesh) {
   if (mesh.vertices.empty()) return {};
   Box box{mesh.vertices.front(), mesh.vertices.front()};

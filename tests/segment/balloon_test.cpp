@@ -83,19 +83,11 @@ bool closed_and_consistently_oriented(const segment::Mesh& m) {
   return true;
 }
 
-double area_mm2(const segment::Mesh& m) {
-  double sum = 0.0;
-  for (const auto& t : m.triangles)
-    sum += 0.5 *
-           (m.vertices[t[1]] - m.vertices[t[0]]).cross(m.vertices[t[2]] - m.vertices[t[0]]).norm();
-  return sum;
-}
-
 // Surface area per vertex in units of L² (the target edge length): about 1 for a mesh that
 // remeshing keeps at L. A front folded over itself, or one refined into slivers, has more vertices.
 double area_per_vertex_L2(const segment::Mesh& m, float vox_mm) {
   const double edge_mm = segment::BalloonOptions{}.target_edge_vox * vox_mm;
-  return area_mm2(m) / static_cast<double>(m.vertices.size()) / (edge_mm * edge_mm);
+  return mesh::surface_area_mm2(m) / static_cast<double>(m.vertices.size()) / (edge_mm * edge_mm);
 }
 
 int count(const segment::BalloonResult& r, StopReason reason) {
@@ -142,7 +134,7 @@ TEST(Balloon, SettlesOnTheSphereWallWithinOneVoxel) {
       << "mean signed error, voxels";
   // One layer at the target edge length: the area is the sphere's (1.001-1.006 of 4πr² over seeds
   // 1-8), at 0.92-0.95 L² per vertex.
-  EXPECT_NEAR(area_mm2(r.mesh) / (4.0 * M_PI * radius_mm * radius_mm), 1.0, 0.03);
+  EXPECT_NEAR(mesh::surface_area_mm2(r.mesh) / (4.0 * M_PI * radius_mm * radius_mm), 1.0, 0.03);
   EXPECT_NEAR(area_per_vertex_L2(r.mesh, p.vox_mm), 1.0, 0.2);
 
   const int n = static_cast<int>(r.mesh.vertices.size());
@@ -194,7 +186,7 @@ TEST(Balloon, TorusStaysGenusZeroAndStopsWhereTheFrontsMeet) {
   const double torus_and_caps_mm2 =
       4.0 * M_PI * M_PI * major_mm * tube_mm + 2.0 * M_PI * tube_mm * tube_mm;
   // (A snap without its slope threshold, reaching 3 voxels ahead, gives 1.05-1.08.)
-  const double area_ratio = area_mm2(r.mesh) / torus_and_caps_mm2;
+  const double area_ratio = mesh::surface_area_mm2(r.mesh) / torus_and_caps_mm2;
   EXPECT_GT(area_ratio, 0.97);
   EXPECT_LT(area_ratio, 1.05);
   EXPECT_NEAR(area_per_vertex_L2(r.mesh, p.vox_mm), 1.0, 0.2);
