@@ -170,6 +170,8 @@ struct PipelineResult {
   bool second_opinion = false;
   /// Tunnels through the target's own darkness were filled (reconstruct::close_dark_tunnels).
   bool dark_tunnels_closed = false;
+  /// More handles than a target has: the tunnels round columns of tissue were filled too.
+  bool tissue_columns_filled = false;
   /// A bright structure the surface had passed over (a needle) was opened, its walls added to
   /// the reconstruction's samples (internal::open_bright_inside).
   bool bright_inside_opened = false;

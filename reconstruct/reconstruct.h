@@ -156,8 +156,9 @@ SurfaceResult reconstruct_surface(const PointCloud& samples, const Vec3f& seed_m
 /// own inside, the reconstruction has a tunnel no wall explains (a false handle). In every slice
 /// of χ across each axis, an outside region enclosed by inside cells (a tunnel's or a void's
 /// cross-section) where the image nowhere reaches `dark_below` is set to `inside_value`.
-/// Returns the cells filled with their values before, so a caller can give them back. A tunnel
-/// round a needle or through a torus' hole is as bright as tissue and stays.
+/// Returns the cells filled with their values before, so a caller can give them back. With
+/// `dark_below` under the tissue's level, a tunnel round a needle or through a torus' hole (as
+/// bright as tissue) stays; a level above the tissue's fills tunnels round columns of tissue.
 struct FilledCell {
   std::size_t index;  // linear index in χ
   float was;          // χ there before

@@ -177,11 +177,27 @@ std::optional<Vec3f> deepest_point(const volume::Volume& indicator, float iso, c
   return input.index_to_mm(input.mm_to_index(deepest->position_mm).array().round().matrix());
 }
 
+// Tunnels no wall explains are filled: those through the target's own darkness (nothing in them
+// reaches the wall's mid level), and, on a surface with more handles than a target has, those
+// round columns of tissue inside it (nothing in them brighter than the tissue by half the
+// contrast): a reader's contour of a cavity takes in its trabeculae and papillary muscles, while
+// a needle's specular echo is brighter than tissue and its tunnel stays.
+void close_false_tunnels(const volume::Volume& smoothed, const Vec3f& seed_mm,
+                         PipelineResult& result, reconstruct::SurfaceResult& surface) {
+  const segment::BalloonStats& stats = result.balloon_stats;
+  const float contrast = stats.tissue_level - stats.seed_level;
+  const bool implausible = surface.topology.genus > internal::kMostHandles;
+  const float fill_below =
+      implausible ? stats.tissue_level + 0.5f * contrast : stats.seed_level + 0.5f * contrast;
+  const bool closed = reconstruct::close_dark_tunnels(surface, seed_mm, smoothed, fill_below);
+  (implausible ? result.tissue_columns_filled : result.dark_tunnels_closed) = closed;
+}
+
 // §4-5: opening at the self-intersections, then Kazhdan's FFT reconstruction and marching cubes
 // on a grid of the volume's voxel size (finer where the opened balloon has a gap or solid too
-// thin for it: a needle's tunnel); then tunnels through the target's darkness filled, unless the
-// genus is no higher than `known_genus` (a warm start's previous result). Returns the error, empty
-// if there is a surface.
+// thin for it: a needle's tunnel); then tunnels no wall explains filled (close_false_tunnels),
+// unless the genus is no higher than `known_genus` (a warm start's previous result). Returns the
+// error, empty if there is a surface.
 std::string surface_stage(const volume::Volume& input, const volume::Volume& smoothed,
                           const Vec3f& seed_mm, const PipelineConfig& config,
                           std::optional<int> known_genus, PipelineResult& result,
@@ -202,10 +218,8 @@ std::string surface_stage(const volume::Volume& input, const volume::Volume& smo
   result.timings.reconstruct_ms = surface.reconstruct_ms;
   // A warm result of the previous result's genus has no handle to explain.
   if (!(known_genus && surface.topology.genus <= *known_genus)) {
-    const segment::BalloonStats& stats = result.balloon_stats;
     const auto t_tunnels = Clock::now();
-    result.dark_tunnels_closed = reconstruct::close_dark_tunnels(
-        surface, seed_mm, smoothed, 0.5f * (stats.seed_level + stats.tissue_level));
+    close_false_tunnels(smoothed, seed_mm, result, surface);
     surface.mesh_ms += ms_since(t_tunnels);
   }
   result.timings.mesh_ms = surface.mesh_ms;

@@ -18,9 +18,6 @@ using volume::Vec3i;
 constexpr float kStalledRadiusVox = 6.0f;
 // Fewer voxels than a ball of 6 voxels' radius: no target a clinician would seed in this volume.
 constexpr double kSmallestVoxels = 905.0;
-// More handles than a target a clinician seeds has (a cyst none, a needle through it one, two
-// needles two): the balloon wrapped round bright clutter or trabeculae inside a cavity.
-constexpr int kMostHandles = 2;
 // Share of the final surface's vertices allowed on the volume's edge or the sector's before the
 // surface counts as touching it (a few vertices graze it on a target that fills the view).
 constexpr double kTouchFraction = 0.01;
@@ -172,7 +169,11 @@ void quality_verdict(const volume::Volume& input, const volume::Volume& smoothed
       why.emplace_back("touches the sector edge");
     if (result.topology.components != 1 || !result.topology.watertight)
       why.emplace_back("not one closed surface");
-    if (result.topology.genus > kMostHandles) why.emplace_back("implausible genus");
+    // Columns are filled only on an implausible surface: what it became is a reader's to check.
+    if (result.topology.genus > kMostHandles)
+      why.emplace_back("implausible genus");
+    else if (result.tissue_columns_filled)
+      why.emplace_back("tissue columns filled");
     result.wall_support = wall_support(smoothed, result.mesh, result.balloon_stats.seed_level,
                                        result.balloon_stats.tissue_level);
     if (result.wall_support >= 0.0f && result.wall_support < kLeastWallSupport)

@@ -79,6 +79,7 @@ nlohmann::json report_json(const PipelineResult& result, const std::string& inpu
   report["reconstruction"] = {{"grid", vec_json(result.grid_dims)},
                               {"cell_mm", result.grid_cell_mm}};
   if (result.dark_tunnels_closed) report["reconstruction"]["dark_tunnels_closed"] = true;
+  if (result.tissue_columns_filled) report["reconstruction"]["tissue_columns_filled"] = true;
   if (result.bright_inside_opened) report["reconstruction"]["bright_inside_opened"] = true;
   // JSON has no infinity: the narrowest feature only when one was thin enough to matter.
   if (std::isfinite(result.grid_feature_mm))

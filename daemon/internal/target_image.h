@@ -43,6 +43,10 @@ float wall_support(const volume::Volume& smoothed, const segment::Mesh& surface,
 float open_patch(const volume::Volume& smoothed, const segment::Mesh& surface, float target_level,
                  float tissue_level, int threads = 0);
 
+/// More handles than a target a clinician seeds has (a cyst none, a needle through it one, two
+/// needles two): the balloon wrapped round columns of tissue or clutter inside a cavity.
+constexpr int kMostHandles = 2;
+
 /// Fills result.quality_ok / quality_reasons (DESIGN.md "the quality verdict") from the balloon and
 /// the final surface: stalled near the seed, implausibly small, touching the volume's edge or the
 /// sector's (no data beyond), the iteration limit, the leak bound, and a wall_support under 3/4

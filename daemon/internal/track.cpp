@@ -180,7 +180,8 @@ PipelineResult carried(const PipelineResult& previous, const PipelineResult& smo
   r.balloon_iterations = 0;
   r.second_opinion = false;
   r.coarse_start = {};
-  r.dark_tunnels_closed = r.bright_inside_opened = false;  // (no reconstruction on this volume)
+  // (no reconstruction on this volume)
+  r.dark_tunnels_closed = r.tissue_columns_filled = r.bright_inside_opened = false;
   r.warm_start = true;
   r.start_reason = "previous surface";
   r.tracking.chain = previous.tracking.chain + 1;

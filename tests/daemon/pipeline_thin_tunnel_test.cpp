@@ -4,6 +4,10 @@
 // opt-in (PoissonOptions::min_feature_cells, off by default: it also keeps spurious handles).
 #include <gtest/gtest.h>
 
+#include <algorithm>
+#include <cmath>
+#include <string>
+
 #include "daemon/internal/metrics.h"
 #include "daemon/pipeline.h"
 #include "sim/sim.h"
@@ -31,6 +35,50 @@ TEST_P(PipelineThinTunnel, CystNeedleAt64KeepsTheTunnel) {
 }
 
 INSTANTIATE_TEST_SUITE_P(SpeckleSeeds, PipelineThinTunnel, ::testing::Values(1u, 2u, 3u, 4u));
+
+// A dark cavity (a ball of 24 voxels' radius) crossed by three columns of tissue, 2.5 voxels in
+// radius, each from wall to wall beside the seed, and with `needle` a brighter needle through it
+// too: a ventricle with its trabeculae, a cyst with its needle. uint8, 72³ of 1 mm.
+volume::Volume cavity_with_columns(bool needle) {
+  using volume::Vec3i;
+  volume::Volume v(Vec3i(72, 72, 72), Vec3f(1, 1, 1), Vec3f(0, 0, 0), volume::VoxelType::UInt8);
+  for (int k = 0; k < 72; ++k)
+    for (int j = 0; j < 72; ++j)
+      for (int i = 0; i < 72; ++i) {
+        const Vec3f d(i - 36.0f, j - 36.0f, k - 36.0f);
+        const bool column = std::hypot(d.x() - 11.0f, d.y()) < 2.5f ||
+                            std::hypot(d.y() + 11.0f, d.z() - 5.0f) < 2.5f ||
+                            std::hypot(d.z() + 11.0f, d.x() + 6.0f) < 2.5f;
+        const bool pierced = needle && std::hypot(d.x() + 4.0f, d.z() - 8.0f) < 1.5f;
+        const float level = pierced ? 230.0f : (d.norm() < 24.0f && !column ? 20.0f : 100.0f);
+        // A little texture, the same on every run.
+        const float texture = 6.0f * std::sin(0.9f * i + 1.3f * j) * std::cos(1.1f * k + 0.7f * i);
+        v.u8()[v.linear_index(i, j, k)] = static_cast<std::uint8_t>(level + texture);
+      }
+  return v;
+}
+
+bool has_reason(const PipelineResult& r, const std::string& reason) {
+  return std::find(r.quality_reasons.begin(), r.quality_reasons.end(), reason) !=
+         r.quality_reasons.end();
+}
+
+// More handles than a target has: the tunnels round the columns of tissue are filled (a reader's
+// contour takes them in), the needle's stays, and the result says so and is suspect.
+TEST(PipelineTissueColumns, AreFilledWhereTheHandlesAreImplausibleAndTheNeedleStays) {
+  for (const bool needle : {false, true}) {
+    const volume::Volume v = cavity_with_columns(needle);
+    PipelineConfig config;
+    config.want_labels = false;
+    const PipelineResult r = run_pipeline(v, Vec3f(36, 36, 36), config);
+    ASSERT_TRUE(r.ok) << r.error;
+    EXPECT_TRUE(r.tissue_columns_filled) << "needle " << needle;
+    EXPECT_EQ(r.topology.genus, needle ? 1 : 0);
+    EXPECT_TRUE(r.topology.watertight);
+    EXPECT_TRUE(has_reason(r, "tissue columns filled")) << "needle " << needle;
+    EXPECT_FALSE(has_reason(r, "implausible genus")) << "needle " << needle;
+  }
+}
 
 }  // namespace
 }  // namespace sonomesh::daemon
