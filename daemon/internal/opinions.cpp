@@ -39,11 +39,17 @@ bool better(const PipelineResult& other, const PipelineResult& first) {
 // asked for. The verdict stands, because a real left ventricle's base opens onto the atrium.
 constexpr float kOpenPatchForSecondOpinion = 0.012f;
 
-// Measures `r`'s open patch (it is ok) and says whether it asks for the second opinion.
+// Measures `r`'s open patch (it is ok) and says whether it asks for the second opinion: only if
+// it is still open against the levels behind it. A wall in a needle's shadow looks open against
+// the target's level; the level stop would run along the shadow and be sealed there, never
+// better (256³ simple cyst-needle: 3 s). The report and the tracker keep the plain measure.
 bool open_widely(const PipelineBuffers& buffers, int threads, PipelineResult& r) {
-  r.open_patch = open_patch(buffers.smoothed, r.mesh, r.balloon_stats.seed_level,
-                            r.balloon_stats.tissue_level, threads);
-  return r.open_patch > kOpenPatchForSecondOpinion;
+  const segment::BalloonStats& stats = r.balloon_stats;
+  r.open_patch =
+      open_patch(buffers.smoothed, r.mesh, stats.seed_level, stats.tissue_level, threads);
+  return r.open_patch > kOpenPatchForSecondOpinion &&
+         open_patch(buffers.smoothed, r.mesh, stats.seed_level, stats.tissue_level, threads, true) >
+             kOpenPatchForSecondOpinion;
 }
 
 // The coarse retry's sigma: `grains` speckle grains, 2-3 voxels of the finest axis (beyond 3 a

@@ -34,10 +34,14 @@ constexpr float kWallRiseFraction = 0.5f;
 constexpr float kLeastWallSupport = 0.75f;
 // The open-patch test of one triangle: the smoothed image 1-5 voxels beyond it looks like the
 // target's inside (its mean within 0.15 of the contrast above the target's level). A balloon
-// stalled in a tube has caps that look down it; a surface on the wall, even beside a wall's gap
-// or a needle's shadow in the simple simulator, sees brighter tissue within those voxels.
+// stalled in a tube has caps that look down it; a surface on the wall sees brighter tissue within
+// those voxels, unless the wall lies in a needle's shadow (the 256³ simple cyst-needle: tissue
+// 36-43 there, the cyst behind it 15-25, its level elsewhere 31). With local levels, where the
+// image 1-3 voxels behind the triangle is under 0.8 of the target's level (a shadow), it stands
+// for the target's level and scales the rise, as a shadow darkens both sides by one factor.
 constexpr float kOpenToVox = 5.0f;
 constexpr float kOpenLevelFraction = 0.15f;
+constexpr float kShadowFraction = 0.8f;
 constexpr std::size_t kOpenGrain = 2048;           // triangles per task
 constexpr std::size_t kWallSupportSamples = 4000;  // vertices tested, evenly spread over the list
 
@@ -111,7 +115,7 @@ float wall_support(const volume::Volume& smoothed, const segment::Mesh& surface,
 }
 
 float open_patch(const volume::Volume& smoothed, const segment::Mesh& surface, float target_level,
-                 float tissue_level, int threads) {
+                 float tissue_level, int threads, bool local_levels) {
   const float contrast = tissue_level - target_level;
   if (smoothed.empty() || surface.triangles.empty() || !(contrast > 0.0f)) return -1.0f;
   const float vox_mm = smoothed.spacing_mm().minCoeff();
@@ -124,9 +128,17 @@ float open_patch(const volume::Volume& smoothed, const segment::Mesh& surface, f
                       &c = surface.vertices[t[2]];
           const Vec3f cross = (p - a).cross(c - a);
           if (!(cross.norm() > 0.0f)) continue;  // (no direction to look in)
-          const float ahead = mean_along(smoothed, (a + p + c) / 3.0f, cross.normalized(), 1.0f,
-                                         kOpenToVox, vox_mm);
-          looks_inside[i] = ahead - target_level < kOpenLevelFraction * contrast;
+          const Vec3f centre = (a + p + c) / 3.0f, normal = cross.normalized();
+          const float ahead = mean_along(smoothed, centre, normal, 1.0f, kOpenToVox, vox_mm);
+          float level = target_level, rise = kOpenLevelFraction * contrast;
+          const float behind =
+              local_levels ? mean_along(smoothed, centre, -normal, 1.0f, kBehindToVox, vox_mm)
+                           : target_level;
+          if (behind < kShadowFraction * target_level) {
+            rise *= behind / target_level;
+            level = behind;
+          }
+          looks_inside[i] = ahead - level < rise;
         }
       });
   segment::Mesh open;

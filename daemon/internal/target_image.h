@@ -38,10 +38,13 @@ float wall_support(const volume::Volume& smoothed, const segment::Mesh& surface,
 
 /// Share of the surface's area in its largest connected patch of triangles that look into the
 /// target's inside: the smoothed image's mean 1-5 voxels beyond a triangle's centre lies within
-/// 0.15 of the contrast above `target_level` (`tissue_level` sets the contrast). −1 when it
+/// 0.15 of the contrast above `target_level` (`tissue_level` sets the contrast). With
+/// `local_levels`, where the image 1-3 voxels behind the triangle is under 0.8 of `target_level`
+/// (a shadow), above that level instead, by 0.15 of the contrast scaled by it over
+/// `target_level` (a wall in a needle's shadow is darker on both sides, not open). −1 when it
 /// cannot be measured. `threads` as segment::BalloonOptions::threads.
 float open_patch(const volume::Volume& smoothed, const segment::Mesh& surface, float target_level,
-                 float tissue_level, int threads = 0);
+                 float tissue_level, int threads = 0, bool local_levels = false);
 
 /// More handles than a target a clinician seeds has (a cyst none, a needle through it one, two
 /// needles two): the balloon wrapped round columns of tissue or clutter inside a cavity.
