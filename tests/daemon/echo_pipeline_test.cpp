@@ -210,6 +210,25 @@ TEST(EchoPipeline, CoarseRetryGetsTheGenusRightAtContrastPointThree) {
     }
 }
 
+// The contrast-0.5 case at 96³: every phantom with its genus and the wall found.
+// Measured (2026-12-04, docs/results.md): Dice 0.920-0.961, genus right in all eight; the
+// cyst-needles suspect for the seal along the needle's shadow, the rest ok. The 0.93 is
+// not met by the double tori (0.920, 0.928).
+TEST(EchoPipeline, EveryPhantomKeepsItsGenusAtContrastHalf) {
+  for (const auto& [name, genus] : {std::tuple{"lv", 0}, std::tuple{"cyst-needle", 1},
+                                    std::tuple{"torus", 1}, std::tuple{"double-torus", 2}})
+    for (unsigned seed : {1u, 2u}) {
+      sim::PhantomSpec spec{.phantom = name, .size_vox = 96, .seed = seed};
+      spec.contrast = 0.5f;
+      const sim::Phantom phantom = sim::make_phantom(sim::with_echo_realism(spec));
+      const PipelineResult r = run_pipeline(phantom.image, phantom.seed_mm, PipelineConfig{});
+      ASSERT_TRUE(r.ok && r.labels) << name << " seed " << seed << ": " << r.error;
+      EXPECT_EQ(r.topology.genus, genus) << name << " seed " << seed;
+      EXPECT_GE(internal::dice(*r.labels, phantom.truth), 0.915) << name << " seed " << seed;
+      EXPECT_GE(r.wall_support, 0.75f) << name << " seed " << seed;
+    }
+}
+
 // The wall fit (docs/stopping.md item 13) moves the pipeline's surface from where the speckle
 // stopped it to the wall: on the 64³ echo lv at contrast 0.5 (measured 2026-12-04: Dice 0.917 →
 // 0.935, volume −8.5 → −1.2 %) the result is closer to the truth in Dice and in volume, and the
