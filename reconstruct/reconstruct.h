@@ -159,18 +159,20 @@ SurfaceResult reconstruct_surface(const PointCloud& samples, const Vec3f& seed_m
 /// Returns the cells filled with their values before, so a caller can give them back. With
 /// `dark_below` under the tissue's level, a tunnel round a needle or through a torus' hole (as
 /// bright as tissue) stays; a level above the tissue's fills tunnels round columns of tissue.
+/// The slices across an axis are scanned on `threads` workers (0: all hardware threads).
 struct FilledCell {
   std::size_t index;  // linear index in χ
   float was;          // χ there before
 };
 std::vector<FilledCell> fill_dark_tunnels(volume::Volume& chi, float iso, float inside_value,
-                                          const volume::Volume& image, float dark_below);
+                                          const volume::Volume& image, float dark_below,
+                                          int threads = 0);
 
 /// fill_dark_tunnels on the surface's χ (`image` the smoothed volume with the target dark), then
 /// marching cubes and the seed's component again. Kept, returning true, only where that lowered
 /// the genus and the surface is closed and encloses the seed; otherwise `surface` is unchanged.
 bool close_dark_tunnels(SurfaceResult& surface, const Vec3f& seed_mm, const volume::Volume& image,
-                        float dark_below);
+                        float dark_below, int threads = 0);
 
 /// Label volume on the grid of `like` (UInt8, same dims/spacing/origin): 1 where the voxel centre
 /// is inside the closed mesh, by ray parity along x per (j, k) row. Rays are offset by a tiny,

@@ -182,14 +182,15 @@ std::optional<Vec3f> deepest_point(const volume::Volume& indicator, float iso, c
 // round columns of tissue inside it (nothing in them brighter than the tissue by half the
 // contrast): a reader's contour of a cavity takes in its trabeculae and papillary muscles, while
 // a needle's specular echo is brighter than tissue and its tunnel stays.
-void close_false_tunnels(const volume::Volume& smoothed, const Vec3f& seed_mm,
+void close_false_tunnels(const volume::Volume& smoothed, const Vec3f& seed_mm, int threads,
                          PipelineResult& result, reconstruct::SurfaceResult& surface) {
   const segment::BalloonStats& stats = result.balloon_stats;
   const float contrast = stats.tissue_level - stats.seed_level;
   const bool implausible = surface.topology.genus > internal::kMostHandles;
   const float fill_below =
       implausible ? stats.tissue_level + 0.5f * contrast : stats.seed_level + 0.5f * contrast;
-  const bool closed = reconstruct::close_dark_tunnels(surface, seed_mm, smoothed, fill_below);
+  const bool closed =
+      reconstruct::close_dark_tunnels(surface, seed_mm, smoothed, fill_below, threads);
   (implausible ? result.tissue_columns_filled : result.dark_tunnels_closed) = closed;
 }
 
@@ -219,7 +220,7 @@ std::string surface_stage(const volume::Volume& input, const volume::Volume& smo
   // A warm result of the previous result's genus has no handle to explain.
   if (!(known_genus && surface.topology.genus <= *known_genus)) {
     const auto t_tunnels = Clock::now();
-    close_false_tunnels(smoothed, seed_mm, result, surface);
+    close_false_tunnels(smoothed, seed_mm, config.balloon.threads, result, surface);
     surface.mesh_ms += ms_since(t_tunnels);
   }
   result.timings.mesh_ms = surface.mesh_ms;

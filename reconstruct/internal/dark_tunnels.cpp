@@ -3,6 +3,7 @@
 #include <limits>
 #include <vector>
 
+#include "mesh/parallel.h"
 #include "reconstruct/reconstruct.h"
 
 namespace sonomesh::reconstruct {
@@ -90,24 +91,37 @@ float max_image(const volume::Volume& chi, const volume::Volume& image,
 }  // namespace
 
 std::vector<FilledCell> fill_dark_tunnels(volume::Volume& chi, float iso, float inside_value,
-                                          const volume::Volume& image, float dark_below) {
+                                          const volume::Volume& image, float dark_below,
+                                          int threads) {
   std::vector<FilledCell> filled;
   const auto [lo, hi] = inside_box(chi, iso);
-  for (int axis = 0; axis < 3; ++axis)
-    for (int s = lo[axis]; s <= hi[axis]; ++s)
-      for (const auto& hole : slice_holes(Slice{chi, axis, s, lo, hi}, iso)) {
-        if (max_image(chi, image, hole) >= dark_below) continue;
-        for (const Vec3i& c : hole) {
-          const std::size_t at = chi.linear_index(c.x(), c.y(), c.z());
-          filled.push_back({at, chi.f32()[at]});  // (outside: below iso < inside_value)
-          chi.f32()[at] = inside_value;
+  mesh::Workers workers(threads);
+  // The slices across one axis hold disjoint cells, so they are filled in parallel; an axis
+  // sees what the axes before it filled. Each chunk's cells are appended in chunk order.
+  std::vector<std::vector<FilledCell>> by_chunk(static_cast<std::size_t>(workers.threads()));
+  for (int axis = 0; axis < 3; ++axis) {
+    workers.parallel_chunks(lo[axis], hi[axis] + 1, [&](int first, int last, int chunk) {
+      std::vector<FilledCell>& mine = by_chunk[static_cast<std::size_t>(chunk)];
+      for (int s = first; s < last; ++s)
+        for (const auto& hole : slice_holes(Slice{chi, axis, s, lo, hi}, iso)) {
+          if (max_image(chi, image, hole) >= dark_below) continue;
+          for (const Vec3i& c : hole) {
+            const std::size_t at = chi.linear_index(c.x(), c.y(), c.z());
+            mine.push_back({at, chi.f32()[at]});  // (outside: below iso < inside_value)
+            chi.f32()[at] = inside_value;
+          }
         }
-      }
+    });
+    for (std::vector<FilledCell>& mine : by_chunk) {
+      filled.insert(filled.end(), mine.begin(), mine.end());
+      mine.clear();
+    }
+  }
   return filled;
 }
 
 bool close_dark_tunnels(SurfaceResult& surface, const Vec3f& seed_mm, const volume::Volume& image,
-                        float dark_below) {
+                        float dark_below, int threads) {
   if (surface.topology.genus <= 0 || surface.indicator.empty()) return false;
   volume::Volume& chi = surface.indicator;
   const float at_seed = volume::sample_mm(chi, seed_mm);
@@ -115,7 +129,7 @@ bool close_dark_tunnels(SurfaceResult& surface, const Vec3f& seed_mm, const volu
   const float inside_value = 0.5f * (surface.iso + at_seed);
   // χ is filled in place and given back unless the genus fell (no copy of the grid per volume).
   const std::vector<FilledCell> filled =
-      fill_dark_tunnels(chi, surface.iso, inside_value, image, dark_below);
+      fill_dark_tunnels(chi, surface.iso, inside_value, image, dark_below, threads);
   if (filled.empty()) return false;
   bool enclosed = false;
   Mesh mesh = mesh::component_enclosing(marching_cubes(chi, surface.iso), seed_mm, &enclosed);
