@@ -192,6 +192,7 @@ struct PipelineResult {
   /// distance transform of χ > iso on the reconstruction grid, in the part around the seed
   /// (internal::deepest_inside). Set whenever there is a surface, labels or not.
   std::optional<Vec3f> deepest_interior_mm;
+  float deepest_depth_mm = 0.0f;  // its distance from the surface (0: none)
 };
 
 /// Runs the whole pipeline on one volume. Numerical outcomes (a balloon that found nothing, a

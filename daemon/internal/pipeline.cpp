@@ -169,12 +169,15 @@ segment::BalloonResult balloon_stage(PipelineBuffers& buffers, const Vec3f& seed
 // input grid and a distance transform of it: 15-23 ms of a 128³ volume, and the labels only for
 // that.) The reinflation moves the surface out by under two voxels, which does not move the
 // deepest point of a target worth tracking, so the box is the reconstructed surface's.
-std::optional<Vec3f> deepest_point(const volume::Volume& indicator, float iso, const mesh::Box& box,
-                                   const Vec3f& seed_mm, const volume::Volume& input) {
-  const auto deepest = internal::deepest_inside(indicator, iso, box.lo_mm, box.hi_mm, seed_mm,
-                                                input.spacing_mm().minCoeff());
-  if (!deepest) return std::nullopt;
-  return input.index_to_mm(input.mm_to_index(deepest->position_mm).array().round().matrix());
+std::optional<internal::DeepestPoint> deepest_point(const volume::Volume& indicator, float iso,
+                                                    const mesh::Box& box, const Vec3f& seed_mm,
+                                                    const volume::Volume& input) {
+  auto deepest = internal::deepest_inside(indicator, iso, box.lo_mm, box.hi_mm, seed_mm,
+                                          input.spacing_mm().minCoeff());
+  if (deepest)
+    deepest->position_mm =
+        input.index_to_mm(input.mm_to_index(deepest->position_mm).array().round().matrix());
+  return deepest;
 }
 
 // Tunnels no wall explains are filled: those through the target's own darkness (nothing in them
@@ -313,11 +316,16 @@ std::string segment_stages(const volume::Volume& input, const Vec3f& seed_mm,
   // two run at once, because neither keeps both cores busy.
   const auto t_deepest = Clock::now();
   auto deepest = std::async(std::launch::async, [&, box = mesh::bounding_box(result.mesh)] {
-    std::optional<Vec3f> point = deepest_point(surface.indicator, surface.iso, box, seed_mm, input);
+    auto point = deepest_point(surface.indicator, surface.iso, box, seed_mm, input);
     return std::pair(point, ms_since(t_deepest));
   });
   reinflate_stage(buffers, config, stop, result);
-  std::tie(result.deepest_interior_mm, result.timings.labels_ms) = deepest.get();
+  const auto [point, deepest_ms] = deepest.get();
+  result.timings.labels_ms = deepest_ms;
+  if (point) {
+    result.deepest_interior_mm = point->position_mm;
+    result.deepest_depth_mm = point->depth_mm;
+  }
   if (config.want_indicator) {
     for (float& value : surface.indicator.f32()) value -= surface.iso;  // the surface is level 0
     result.indicator = std::move(surface.indicator);

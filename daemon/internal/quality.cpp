@@ -134,7 +134,7 @@ float open_patch(const volume::Volume& smoothed, const segment::Mesh& surface, f
           const float behind =
               local_levels ? mean_along(smoothed, centre, -normal, 1.0f, kBehindToVox, vox_mm)
                            : target_level;
-          if (behind < kShadowFraction * target_level) {
+          if (target_level > 0.0f && behind < kShadowFraction * target_level) {
             rise *= behind / target_level;
             level = behind;
           }
