@@ -94,7 +94,8 @@ std::vector<FilledCell> fill_dark_tunnels(volume::Volume& chi, float iso, float 
                                           const volume::Volume& image, float dark_below,
                                           int threads) {
   std::vector<FilledCell> filled;
-  const auto [lo, hi] = inside_box(chi, iso);
+  const std::pair<Vec3i, Vec3i> box = inside_box(chi, iso);
+  const Vec3i lo = box.first, hi = box.second;  // (a lambda cannot capture structured bindings)
   mesh::Workers workers(threads);
   // The slices across one axis hold disjoint cells, so they are filled in parallel; an axis
   // sees what the axes before it filled. Each chunk's cells are appended in chunk order.

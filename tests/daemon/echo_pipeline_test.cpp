@@ -16,8 +16,9 @@
 namespace sonomesh::daemon {
 namespace {
 
-sim::Phantom echo_phantom(const std::string& name, float contrast) {
-  sim::PhantomSpec spec{.phantom = name, .size_vox = 64};
+sim::Phantom echo_phantom(const std::string& name, float contrast, int size_vox = 64,
+                          unsigned seed = 1) {
+  sim::PhantomSpec spec{.phantom = name, .size_vox = size_vox, .seed = seed};
   spec.contrast = contrast;
   return sim::make_phantom(sim::with_echo_realism(spec));
 }
@@ -206,9 +207,7 @@ TEST(EchoPipeline, ASuspectWarmResultGetsNoSecondOpinion) {
 TEST(EchoPipeline, CoarseRetryGetsTheGenusRightAtContrastPointThree) {
   for (const auto& [name, genus] : {std::tuple{"sphere", 0}, std::tuple{"cyst-needle", 1}})
     for (unsigned seed : {1u, 2u}) {
-      sim::PhantomSpec spec{.phantom = name, .size_vox = 96, .seed = seed};
-      spec.contrast = 0.3f;
-      const sim::Phantom phantom = sim::make_phantom(sim::with_echo_realism(spec));
+      const sim::Phantom phantom = echo_phantom(name, 0.3f, 96, seed);
       const PipelineResult r = run_pipeline(phantom.image, phantom.seed_mm, PipelineConfig{});
       ASSERT_TRUE(r.ok && r.labels) << name << " seed " << seed << ": " << r.error;
       EXPECT_TRUE(r.coarse_retry) << name << " seed " << seed;
@@ -232,9 +231,7 @@ TEST(EchoPipeline, EveryPhantomKeepsItsGenusAtContrastHalf) {
   for (const auto& [name, genus] : {std::tuple{"lv", 0}, std::tuple{"cyst-needle", 1},
                                     std::tuple{"torus", 1}, std::tuple{"double-torus", 2}})
     for (unsigned seed : {1u, 2u}) {
-      sim::PhantomSpec spec{.phantom = name, .size_vox = 96, .seed = seed};
-      spec.contrast = 0.5f;
-      const sim::Phantom phantom = sim::make_phantom(sim::with_echo_realism(spec));
+      const sim::Phantom phantom = echo_phantom(name, 0.5f, 96, seed);
       const PipelineResult r = run_pipeline(phantom.image, phantom.seed_mm, PipelineConfig{});
       ASSERT_TRUE(r.ok && r.labels) << name << " seed " << seed << ": " << r.error;
       EXPECT_EQ(r.topology.genus, genus) << name << " seed " << seed;
