@@ -91,6 +91,9 @@ struct BalloonOptions {
   // Leak bound: more vertices than a surface of this fraction of the volume's bounding-box area
   // needs means the balloon escaped through a gap; it ends with `error` set.
   float max_area_fraction = 1.0f;
+  // The same bound as an area (mm²), when it is smaller: a pass that starts from a balloon found
+  // on a coarser grid may not outgrow it by much (daemon/internal/coarse_start.h). 0: none.
+  float max_area_mm2 = 0.0f;
   // A leak that rolled back is sealed and the balloon inflated again, this often at most (a
   // wall's dropout is one gap, seldom more); 0: a leak ends the balloon, rolled back.
   int max_leak_seals = 6;

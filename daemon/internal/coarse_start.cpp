@@ -77,14 +77,10 @@ int build_pyramid(const volume::Volume& smoothed, const CoarseStartOptions& opti
   return levels;
 }
 
-// `passes` bounded to `growth` times `coarse`'s area on `grid` (leak_bound's box-area share).
+// `passes` bounded to `growth` times `coarse`'s area.
 segment::BalloonOptions bounded(segment::BalloonOptions passes, const segment::Mesh& coarse,
-                                const volume::Volume& grid, float growth) {
-  const volume::Vec3f e = grid.max_mm() - grid.min_mm();
-  const double box_mm2 = 2.0 * (e.x() * e.y() + e.y() * e.z() + e.z() * e.x());
-  passes.max_area_fraction =
-      std::min(passes.max_area_fraction,
-               static_cast<float>(growth * mesh::surface_area_mm2(coarse) / box_mm2));
+                                float growth) {
+  passes.max_area_mm2 = growth * static_cast<float>(mesh::surface_area_mm2(coarse));
   return passes;
 }
 
@@ -108,8 +104,7 @@ std::string from_level(const volume::Volume& smoothed, const std::vector<volume:
   for (int level = top - 1; level >= 0; --level) {
     const float inset_mm = options.inset_vox * grid(level).spacing_mm().minCoeff();
     segment::BalloonResult finer = segment::inflate_balloon_from(
-        grid(level), balloon.mesh, seed_mm,
-        bounded(passes, balloon.mesh, grid(level), options.max_area_growth),
+        grid(level), balloon.mesh, seed_mm, bounded(passes, balloon.mesh, options.max_area_growth),
         {.inset_mm = inset_mm, .start_stop = balloon.stop, .replay_vox = options.replay_vox}, stop);
     report.fine_ms += ms_since(t);
     t = Clock::now();

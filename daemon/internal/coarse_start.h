@@ -26,7 +26,7 @@ struct CoarseStartOptions {
                             // coarse pass (a target of a few coarse voxels loses its tunnels)
   int max_levels = 2;       // halvings at most
   // A finer pass may grow the surface to this many times the coarser balloon's area; more is a
-  // leak (BalloonOptions::max_area_fraction): one through a gap the coarse grid blurred shut ran
+  // leak (BalloonOptions::max_area_mm2): one through a gap the coarse grid blurred shut ran
   // to the volume's bound, 39 000 vertices, for 400-630 ms before the plain cold start.
   float max_area_growth = 3.0f;
 };

@@ -16,15 +16,16 @@ constexpr int kNoVoxel = std::numeric_limits<int>::min();
 constexpr float kLevelSnapAheadVox = 4.0f;
 
 // A leak (the balloon escaping through a gap) shows as more vertices than a surface of the
-// volume's bounding-box area (times max_area_fraction) needs at the target edge length.
+// volume's bounding-box area (times max_area_fraction), or of max_area_mm2 when smaller, needs at
+// the target edge length.
 std::size_t leak_bound(const volume::Volume& grid, const BalloonOptions& o, float vox_mm) {
   const Vec3f extent_mm = grid.max_mm() - grid.min_mm();
   const float box_area_mm2 = 2.0f * (extent_mm.x() * extent_mm.y() + extent_mm.y() * extent_mm.z() +
                                      extent_mm.z() * extent_mm.x());
+  float area_mm2 = o.max_area_fraction * box_area_mm2;
+  if (o.max_area_mm2 > 0.0f) area_mm2 = std::min(area_mm2, o.max_area_mm2);
   const float edge_mm = o.target_edge_vox * vox_mm;
-  return static_cast<std::size_t>(o.max_area_fraction * box_area_mm2 /
-                                  (0.433f * edge_mm * edge_mm) * 0.5f) +
-         1000;
+  return static_cast<std::size_t>(area_mm2 / (0.433f * edge_mm * edge_mm) * 0.5f) + 1000;
 }
 
 }  // namespace

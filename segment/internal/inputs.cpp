@@ -49,6 +49,7 @@ std::string validate(const BalloonOptions& o) {
   if (o.remesh_every_iterations < 1) return "remesh_every_iterations must be >= 1";
   if (o.max_iterations < 1) return "max_iterations must be >= 1";
   if (!(o.max_area_fraction > 0.0f)) return "max_area_fraction must be > 0";
+  if (!(o.max_area_mm2 >= 0.0f)) return "max_area_mm2 must be >= 0 (0 = no bound)";
   if (o.max_leak_seals < 0) return "max_leak_seals must be >= 0";
   if (o.stall_window_iterations < 1) return "stall_window_iterations must be >= 1";
   if (o.threads < 0) return "threads must be >= 0";

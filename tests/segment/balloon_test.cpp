@@ -350,22 +350,26 @@ TEST(Balloon, ALeakThroughAGapIsSealedAtTheGap) {
       }
   const auto smoothed = volume::smooth_gaussian(image, 1.0f);
   // The default bound (the bounding box's whole area) would let it first spread over the volume
-  // walls; a quarter of it is still four times this shell's area.
-  const auto r =
-      segment::inflate_balloon(smoothed, Vec3f(24, 24, 24), {.max_area_fraction = 0.25f});
-  // The balloon from before the leak inflated again with its vertices in the hole stopped: it
-  // fills the shell's inside, its walls are the shell's, and what it sealed is the hole.
-  ASSERT_TRUE(r.error.empty()) << r.error;
-  EXPECT_GE(r.stats.leak_seals, 1);
-  EXPECT_FALSE(r.stats.leaked);
-  EXPECT_TRUE(r.converged);
-  const double inside_ml = 4.0 / 3.0 * M_PI * std::pow(9.0, 3) / 1000.0;
-  EXPECT_GT(mesh::enclosed_volume_ml(r.mesh), 0.5 * inside_ml);
-  EXPECT_LT(mesh::enclosed_volume_ml(r.mesh), 1.5 * inside_ml);
-  EXPECT_GT(r.stats.sealed_vertices, 0);
-  int outside_shell = 0;
-  for (const Vec3f& v : r.mesh.vertices) outside_shell += (v - Vec3f(24, 24, 24)).norm() > 12.0f;
-  EXPECT_LE(outside_shell, static_cast<int>(r.mesh.vertices.size()) / 20);
+  // walls; a quarter of it is still four times this shell's area. The same bound as an area: the
+  // box of 0-47 mm has 6 · 47² mm².
+  for (const segment::BalloonOptions& options :
+       {segment::BalloonOptions{.max_area_fraction = 0.25f},
+        segment::BalloonOptions{.max_area_mm2 = 0.25f * 6.0f * 47.0f * 47.0f}}) {
+    const auto r = segment::inflate_balloon(smoothed, Vec3f(24, 24, 24), options);
+    // The balloon from before the leak inflated again with its vertices in the hole stopped: it
+    // fills the shell's inside, its walls are the shell's, and what it sealed is the hole.
+    ASSERT_TRUE(r.error.empty()) << r.error;
+    EXPECT_GE(r.stats.leak_seals, 1);
+    EXPECT_FALSE(r.stats.leaked);
+    EXPECT_TRUE(r.converged);
+    const double inside_ml = 4.0 / 3.0 * M_PI * std::pow(9.0, 3) / 1000.0;
+    EXPECT_GT(mesh::enclosed_volume_ml(r.mesh), 0.5 * inside_ml);
+    EXPECT_LT(mesh::enclosed_volume_ml(r.mesh), 1.5 * inside_ml);
+    EXPECT_GT(r.stats.sealed_vertices, 0);
+    int outside_shell = 0;
+    for (const Vec3f& v : r.mesh.vertices) outside_shell += (v - Vec3f(24, 24, 24)).norm() > 12.0f;
+    EXPECT_LE(outside_shell, static_cast<int>(r.mesh.vertices.size()) / 20);
+  }
 }
 
 TEST(Balloon, WorksOnAnisotropicSpacing) {
