@@ -6,6 +6,7 @@
 #include <cstdint>
 #include <numeric>
 #include <unordered_map>
+#include <vector>
 
 namespace sonomesh::segment::internal {
 namespace {
@@ -19,28 +20,43 @@ constexpr float kLeastLeakGrowth = 4.0f;
 // New surface further than this from every moving vertex is not credited to any.
 constexpr float kCreditReachVox = 16.0f;
 
-// Points hashed on a cubic lattice, for nearest-point queries within a few cells.
-class PointHash {
+// Points binned on a cubic lattice over their own bounding box, for nearest-point queries within
+// a few cells. The rings are clipped to the box: most of a leak's new surface lies beyond the
+// moving vertices, where a search over all cells of its reach would visit hundreds of empty ones.
+class PointGrid {
  public:
-  PointHash(const std::vector<Vec3f>& points, std::vector<std::uint32_t> ids, float cell_mm)
-      : points_(points), ids_(std::move(ids)), cell_mm_(cell_mm) {
-    for (const std::uint32_t i : ids_) cells_[key(cell_of(points_[i]))].push_back(i);
+  PointGrid(const std::vector<Vec3f>& points, const std::vector<std::uint32_t>& ids, float cell_mm)
+      : points_(points), cell_mm_(cell_mm) {
+    if (ids.empty()) return;
+    lo_ = hi_ = cell_of(points_[ids.front()]);
+    for (const std::uint32_t i : ids) {
+      lo_ = lo_.cwiseMin(cell_of(points_[i]));
+      hi_ = hi_.cwiseMax(cell_of(points_[i]));
+    }
+    dims_ = hi_ - lo_ + Eigen::Vector3i::Ones();
+    start_.assign(static_cast<std::size_t>(dims_.prod()) + 1, 0);
+    for (const std::uint32_t i : ids) ++start_[bin(cell_of(points_[i])) + 1];
+    std::partial_sum(start_.begin(), start_.end(), start_.begin());
+    ids_.resize(ids.size());
+    std::vector<std::uint32_t> fill(start_.begin(), start_.end() - 1);
+    for (const std::uint32_t i : ids) ids_[fill[bin(cell_of(points_[i]))]++] = i;
   }
 
-  // The nearest point within `reach_mm` (kInvalidIndex: none), searching rings of cells.
+  // The nearest point within `reach_mm` (kInvalidIndex: none), searching rings of cells; of
+  // points at the same distance the first in ring, cell and id order.
   std::uint32_t nearest(const Vec3f& p, float reach_mm) const {
+    if (ids_.empty()) return kInvalidIndex;
     const Eigen::Vector3i c = cell_of(p);
     const int rings = static_cast<int>(std::ceil(reach_mm / cell_mm_));
     std::uint32_t best = kInvalidIndex;
     float best2 = reach_mm * reach_mm;
     for (int r = 0; r <= rings; ++r) {
-      for_ring(c, r, [&](const Eigen::Vector3i& q) {
-        const auto it = cells_.find(key(q));
-        if (it == cells_.end()) return;
-        for (const std::uint32_t i : it->second)
-          if (const float d2 = (points_[i] - p).squaredNorm(); d2 < best2) best2 = d2, best = i;
+      for_ring(c, r, [&](std::size_t b) {
+        for (std::uint32_t k = start_[b]; k < start_[b + 1]; ++k)
+          if (const float d2 = (points_[ids_[k]] - p).squaredNorm(); d2 < best2)
+            best2 = d2, best = ids_[k];
       });
-      // A point in ring r lies at least (r - 1) cells away: further rings cannot beat it.
+      // A point in ring r + 1 lies at least r cells away: further rings cannot beat it.
       if (best != kInvalidIndex && static_cast<float>(r) * cell_mm_ >= std::sqrt(best2)) break;
     }
     return best;
@@ -50,24 +66,33 @@ class PointHash {
   Eigen::Vector3i cell_of(const Vec3f& p) const {
     return (p / cell_mm_).array().floor().cast<int>();
   }
-  static std::int64_t key(const Eigen::Vector3i& c) {
-    return (static_cast<std::int64_t>(c.x()) & 0x1fffff) |
-           ((static_cast<std::int64_t>(c.y()) & 0x1fffff) << 21) |
-           ((static_cast<std::int64_t>(c.z()) & 0x1fffff) << 42);
+  std::size_t bin(const Eigen::Vector3i& cell) const {
+    const Eigen::Vector3i q = cell - lo_;
+    return (static_cast<std::size_t>(q.z()) * dims_.y() + q.y()) * dims_.x() + q.x();
   }
+  // visit(bin) for each cell of the shell at Chebyshev distance r from c that lies in the box.
   template <typename F>
-  static void for_ring(const Eigen::Vector3i& c, int r, F&& visit) {
-    for (int dz = -r; dz <= r; ++dz)
-      for (int dy = -r; dy <= r; ++dy)
-        for (int dx = -r; dx <= r; ++dx)
-          if (std::max({std::abs(dx), std::abs(dy), std::abs(dz)}) == r)
-            visit(c + Eigen::Vector3i(dx, dy, dz));
+  void for_ring(const Eigen::Vector3i& c, int r, F&& visit) const {
+    const Eigen::Vector3i from = (c - r * Eigen::Vector3i::Ones()).cwiseMax(lo_);
+    const Eigen::Vector3i to = (c + r * Eigen::Vector3i::Ones()).cwiseMin(hi_);
+    for (int z = from.z(); z <= to.z(); ++z)
+      for (int y = from.y(); y <= to.y(); ++y) {
+        if (std::abs(z - c.z()) == r || std::abs(y - c.y()) == r) {
+          for (int x = from.x(); x <= to.x(); ++x) visit(bin(Eigen::Vector3i(x, y, z)));
+          continue;
+        }
+        // Off the shell's faces in z and y: only its two x faces.
+        for (const int x : {c.x() - r, c.x() + r})
+          if (x >= from.x() && x <= to.x()) visit(bin(Eigen::Vector3i(x, y, z)));
+      }
   }
 
   const std::vector<Vec3f>& points_;
-  std::vector<std::uint32_t> ids_;
   float cell_mm_;
-  std::unordered_map<std::int64_t, std::vector<std::uint32_t>> cells_;
+  Eigen::Vector3i lo_ = Eigen::Vector3i::Zero(), hi_ = -Eigen::Vector3i::Ones();
+  Eigen::Vector3i dims_ = Eigen::Vector3i::Zero();
+  std::vector<std::uint32_t> start_;  // bin b's ids are ids_[start_[b], start_[b + 1])
+  std::vector<std::uint32_t> ids_;
 };
 
 std::vector<std::uint32_t> moving_vertices(const BalloonEvolution::Snapshot& before) {
@@ -83,8 +108,8 @@ std::vector<int> credit_new_surface(const BalloonEvolution::Snapshot& before,
                                     const std::vector<Vec3f>& leaked_mm, float vox_mm) {
   std::vector<std::uint32_t> all(before.mesh.vertices.size());
   std::iota(all.begin(), all.end(), 0u);
-  const PointHash kept(before.mesh.vertices, std::move(all), 2.0f * vox_mm);
-  const PointHash moving(before.mesh.vertices, moving_ids, 4.0f * vox_mm);
+  const PointGrid kept(before.mesh.vertices, all, 2.0f * vox_mm);
+  const PointGrid moving(before.mesh.vertices, moving_ids, 4.0f * vox_mm);
   std::vector<int> credit(before.mesh.vertices.size(), 0);
   for (const Vec3f& p : leaked_mm) {
     if (kept.nearest(p, kNewSurfaceVox * vox_mm) != kInvalidIndex) continue;
