@@ -43,6 +43,76 @@ void for_each_border_voxel(const Vec3i& d, F&& f) {
     }
 }
 
+// Calls f(voxels) with the input's voxel vector of its own type.
+template <typename F>
+void with_voxels(const Volume& input, F&& f) {
+  switch (input.type()) {
+    case volume::VoxelType::UInt8:
+      return f(input.u8());
+    case volume::VoxelType::UInt16:
+      return f(input.u16());
+    case volume::VoxelType::Float32:
+      return f(input.f32());
+  }
+}
+
+// A grid of dims `d` inside a one-voxel margin: a cell's neighbours are fixed offsets, with no
+// bounds test, where the margin is never entered.
+class PaddedGrid {
+ public:
+  explicit PaddedGrid(const Vec3i& d)
+      : d_(d), nx_(static_cast<std::size_t>(d.x()) + 2), nxy_(nx_ * (d.y() + 2)) {}
+  std::size_t size() const { return nxy_ * (d_.z() + 2); }
+  std::size_t index(int i, int j, int k) const {
+    return (k + 1) * nxy_ + (j + 1) * nx_ + static_cast<std::size_t>(i + 1);
+  }
+  // From a cell to the same cell of the four rows beside its row (y ± 1, z ± 1).
+  std::array<std::ptrdiff_t, 4> row_steps() const {
+    const auto x = static_cast<std::ptrdiff_t>(nx_), xy = static_cast<std::ptrdiff_t>(nxy_);
+    return {x, -x, xy, -xy};
+  }
+  // f(at, p) for every voxel: `at` as Volume::linear_index, `p` its index here.
+  template <typename F>
+  void for_each_voxel(F&& f) const {
+    std::size_t at = 0;
+    for (int k = 0; k < d_.z(); ++k)
+      for (int j = 0; j < d_.y(); ++j) {
+        const std::size_t p = index(0, j, k);
+        for (int i = 0; i < d_.x(); ++i, ++at) f(at, p + i);
+      }
+  }
+
+ private:
+  Vec3i d_;
+  std::size_t nx_, nxy_;
+};
+
+// Marks 2 → 1 in `cells` (on `grid`, its margin not 2) for every cell connected through 2s to a
+// 2 on the border of the grid's dims `d`; returns how many. A scanline flood: it takes whole runs
+// along x and queues one cell per run found beside them, so it streams rows rather than hopping
+// through the volume voxel by voxel.
+std::size_t flood_rows(const PaddedGrid& grid, const Vec3i& d, std::vector<std::uint8_t>& cells) {
+  std::vector<std::pair<std::size_t, std::size_t>> runs;  // [first, last] cells
+  std::size_t reached = 0;
+  auto take_run = [&](std::size_t p) {
+    if (cells[p] != 2) return;
+    std::size_t first = p, last = p;
+    while (cells[first - 1] == 2) --first;
+    while (cells[last + 1] == 2) ++last;
+    std::fill(cells.begin() + first, cells.begin() + last + 1, 1);
+    reached += last - first + 1;
+    runs.emplace_back(first, last);
+  };
+  for_each_border_voxel(d, [&](int i, int j, int k) { take_run(grid.index(i, j, k)); });
+  while (!runs.empty()) {
+    const auto [first, last] = runs.back();
+    runs.pop_back();
+    for (const std::ptrdiff_t step : grid.row_steps())
+      for (std::size_t p = first; p <= last; ++p) take_run(p + step);
+  }
+  return reached;
+}
+
 }  // namespace
 
 std::vector<std::uint8_t> no_data_mask(const Volume& input) {
@@ -55,49 +125,19 @@ std::vector<std::uint8_t> no_data_mask(const Volume& input) {
   for_each_border_voxel(
       d, [&](int i, int j, int k) { border_zero = border_zero || input.value(i, j, k) == 0.0f; });
   if (!border_zero) return mask;
-  std::vector<std::uint32_t> queue;
-  // The zeros once, as a byte per voxel (Volume::value per lookup was most of the flood's time).
-  mask.resize(input.voxel_count());
-  switch (input.type()) {
-    case volume::VoxelType::UInt8: {
-      const auto& v = input.u8();
-      for (std::size_t i = 0; i < v.size(); ++i) mask[i] = v[i] == 0 ? 2 : 0;
-      break;
-    }
-    case volume::VoxelType::UInt16: {
-      const auto& v = input.u16();
-      for (std::size_t i = 0; i < v.size(); ++i) mask[i] = v[i] == 0 ? 2 : 0;
-      break;
-    }
-    default: {
-      const auto& v = input.f32();
-      for (std::size_t i = 0; i < v.size(); ++i) mask[i] = v[i] == 0.0f ? 2 : 0;
-    }
-  }
-  // 2: a zero not (yet) reached from the border; 1: reached (no data).
-  auto push = [&](int i, int j, int k) {
-    const std::size_t at = input.linear_index(i, j, k);
-    if (mask[at] != 2) return;
-    mask[at] = 1;
-    queue.push_back(static_cast<std::uint32_t>(at));
-  };
-  for_each_border_voxel(d, push);
-  if (queue.empty()) return {};  // no zero on the border: no sector's outside
-  for (std::size_t q = 0; q < queue.size(); ++q) {
-    const std::uint32_t at = queue[q];
-    const int i = static_cast<int>(at % d.x()), j = static_cast<int>((at / d.x()) % d.y()),
-              k = static_cast<int>(at / (static_cast<std::size_t>(d.x()) * d.y()));
-    if (i > 0) push(i - 1, j, k);
-    if (i + 1 < d.x()) push(i + 1, j, k);
-    if (j > 0) push(i, j - 1, k);
-    if (j + 1 < d.y()) push(i, j + 1, k);
-    if (k > 0) push(i, j, k - 1);
-    if (k + 1 < d.z()) push(i, j, k + 1);
-  }
-  if (static_cast<double>(queue.size()) <
-      kMinNoDataFraction * static_cast<double>(input.voxel_count()))
+  // The zeros once, a byte per cell of the padded grid the flood runs on. 2: a zero not (yet)
+  // reached from the border; 1: reached (no data).
+  const PaddedGrid grid(d);
+  std::vector<std::uint8_t> padded(grid.size(), 0);
+  with_voxels(input, [&](const auto& v) {
+    grid.for_each_voxel([&](std::size_t at, std::size_t p) { padded[p] = v[at] == 0 ? 2 : 0; });
+  });
+  const std::size_t reached = flood_rows(grid, d, padded);
+  if (reached == 0) return {};  // no zero on the border: no sector's outside
+  if (static_cast<double>(reached) < kMinNoDataFraction * static_cast<double>(input.voxel_count()))
     return {};
-  for (std::uint8_t& m : mask) m = m == 1 ? 1 : 0;
+  mask.resize(input.voxel_count());
+  grid.for_each_voxel([&](std::size_t at, std::size_t p) { mask[at] = padded[p] == 1 ? 1 : 0; });
   return mask;
 }
 
@@ -140,16 +180,7 @@ bool working_image(const Volume& input, TargetPolarity target,
   out.set_direction(input.direction());
   std::vector<float>& v =
       out.f32();  // (converted in place: to_float's copy was a second 4 B/voxel)
-  switch (input.type()) {
-    case volume::VoxelType::UInt8:
-      std::copy(input.u8().begin(), input.u8().end(), v.begin());
-      break;
-    case volume::VoxelType::UInt16:
-      std::copy(input.u16().begin(), input.u16().end(), v.begin());
-      break;
-    default:
-      std::copy(input.f32().begin(), input.f32().end(), v.begin());
-  }
+  with_voxels(input, [&](const auto& in) { std::copy(in.begin(), in.end(), v.begin()); });
   if (bright) {
     // I' = max − I: the brightest voxel becomes black, a bright organ a dark one in brighter
     // surroundings, and the balloon's rules (relative cost, tissue level) apply unchanged.
@@ -175,12 +206,14 @@ bool working_image(const Volume& input, TargetPolarity target,
     if (k + 1 < nz) f(at + nxy);
   };
   std::vector<std::uint8_t> open(no_data.begin(), no_data.end());  // 1: still to fill
-  for (std::size_t at = 0; at < v.size(); ++at) {
-    if (open[at]) continue;
-    bool edge = false;
-    neighbours(at, [&](std::size_t to) { edge = edge || open[to]; });
-    if (edge) layer.push_back(static_cast<std::uint32_t>(at));
-  }
+  std::size_t at = 0;  // (the data's edge by rows: no index arithmetic per voxel)
+  for (std::size_t k = 0; k < nz; ++k)
+    for (std::size_t j = 0; j < ny; ++j)
+      for (std::size_t i = 0; i < nx; ++i, ++at)
+        if (!open[at] && ((i > 0 && open[at - 1]) || (i + 1 < nx && open[at + 1]) ||
+                          (j > 0 && open[at - nx]) || (j + 1 < ny && open[at + nx]) ||
+                          (k > 0 && open[at - nxy]) || (k + 1 < nz && open[at + nxy])))
+          layer.push_back(static_cast<std::uint32_t>(at));
   for (int pass = 0; pass < kFillLayers && !layer.empty(); ++pass) {
     next.clear();
     for (const std::uint32_t at : layer)
