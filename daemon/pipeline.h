@@ -4,6 +4,7 @@
 /// reconstruction, marching cubes, topology, labels (DESIGN.md, docs/method.md).
 
 #include <array>
+#include <cstdint>
 #include <limits>
 #include <memory>
 #include <nlohmann/json.hpp>
@@ -202,13 +203,22 @@ struct PipelineResult {
 PipelineResult run_pipeline(const volume::Volume& input, const Vec3f& seed_mm,
                             const PipelineConfig& config, std::stop_token stop = {});
 
-/// What one caller keeps from volume to volume (the daemon's worker): the smoothed volume, 4 bytes
-/// per voxel. A fresh one is allocated and zero-filled for every volume, which at 256³ costs about
-/// as much as the smoothing itself. (No gradient volumes: the balloon takes central differences
+/// What one caller keeps from volume to volume (the daemon's worker): the smoothed volume and the
+/// image smoothed when it is not the input, 4 bytes per voxel each, and a probe's no-data region.
+/// A fresh volume is allocated and zero-filled for every volume, which at 256³ costs about as
+/// much as the smoothing itself. (No gradient volumes: the balloon takes central differences
 /// of the smoothed volume where it samples.)
 struct PipelineBuffers {
   volume::Volume smoothed;
   std::vector<volume::Volume> pyramid;  // the coarse start's grids, an eighth of the one below
+  volume::Volume working;               // the image smoothed, where it is not the input itself
+  // A probe's no-data region (zeros outside its sector) and the plan of the working image's fill
+  // over it: the same in every volume of a probe, so flooded again only when the zeros moved.
+  struct NoDataRegion {
+    Vec3i dims = Vec3i::Zero();
+    std::vector<std::uint8_t> mask;  // per voxel (Volume::linear_index), 1: no data; empty: none
+    std::vector<std::pair<std::uint32_t, std::uint32_t>> fill;  // (voxel, voxel it copies)
+  } no_data;
 };
 
 /// Same, smoothing into `buffers` (reused when the next volume has the same dimensions).

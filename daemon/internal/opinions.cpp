@@ -84,8 +84,7 @@ void fine_fit(const volume::Volume& input, const Vec3f& seed_mm, const PipelineC
   fine.smooth_sigma_mm = kFineFitSigmaFraction * first_sigma_mm;
   fine.target = result.target;  // (decided once, by the first pass)
   PipelineResult smoothed;
-  std::vector<std::uint8_t> no_data;
-  smooth_stage(input, seed_mm, fine, buffers, no_data, smoothed);
+  smooth_stage(input, seed_mm, fine, buffers, smoothed);
   const auto t = Clock::now();
   result.mesh = segment::fit_to_wall(buffers.smoothed, result.mesh, result.balloon_stats, kFineFit,
                                      config.balloon.threads);
@@ -152,8 +151,7 @@ void coarse_retry(const volume::Volume& input, const Vec3f& seed_mm, const Pipel
       coarse_sigma_mm(input, result.speckle_grain_mm, config.coarse_retry_grains);
   coarse.target = result.target;  // (decided once, by the first pass)
   PipelineResult other;
-  std::vector<std::uint8_t> no_data;  // (the same as the first smoothing's)
-  smooth_stage(input, seed_mm, coarse, buffers, no_data, other);
+  smooth_stage(input, seed_mm, coarse, buffers, other);
   bool judged = false;
   std::string other_error =
       segment_opinions(input, seed_mm, coarse, buffers, nullptr, stop, judge, other, judged);

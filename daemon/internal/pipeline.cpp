@@ -91,9 +91,10 @@ PipelineResult run_pipeline(const volume::Volume& input, const Vec3f& seed_mm,
 
 namespace internal {
 
-void smooth_stage(const volume::Volume& input, const Vec3f& seed_mm, const PipelineConfig& config,
-                  PipelineBuffers& buffers, std::vector<std::uint8_t>& no_data,
-                  PipelineResult& result) {
+const std::vector<std::uint8_t>& smooth_stage(const volume::Volume& input, const Vec3f& seed_mm,
+                                              const PipelineConfig& config,
+                                              PipelineBuffers& buffers, PipelineResult& result) {
+  static const NoDataRegion kNone;
   const auto t = Clock::now();
   result.speckle_grain_mm = volume::speckle_grain_mm(input, seed_mm);
   const float sigma_mm =
@@ -103,11 +104,13 @@ void smooth_stage(const volume::Volume& input, const Vec3f& seed_mm, const Pipel
                       ? internal::decide_polarity(input, seed_mm, result.speckle_grain_mm)
                       : config.target;
   // A probe's zeros outside its sector are no data, darker than any dark target: a wall for it.
-  if (result.target == TargetPolarity::Dark) no_data = internal::no_data_mask(input);
-  volume::Volume working;
-  const bool rewritten = internal::working_image(input, result.target, no_data, working);
-  volume::smooth_gaussian(rewritten ? working : input, sigma_mm, buffers.smoothed);
+  const bool dark = result.target == TargetPolarity::Dark;
+  if (dark) internal::update_no_data(input, buffers.no_data);
+  const NoDataRegion& no_data = dark ? buffers.no_data : kNone;
+  const bool rewritten = internal::working_image(input, result.target, no_data, buffers.working);
+  volume::smooth_gaussian(rewritten ? buffers.working : input, sigma_mm, buffers.smoothed);
   result.timings.smooth_ms = ms_since(t);
+  return no_data.mask;
 }
 
 reconstruct::PoissonOptions poisson_options(const PipelineConfig& config,
@@ -340,12 +343,13 @@ PipelineResult run_pipeline(const volume::Volume& input, const Vec3f& seed_mm,
                             const WarmStart* warm, std::stop_token stop) {
   const auto start = Clock::now();
   PipelineResult result;
-  std::vector<std::uint8_t> no_data;  // (set in §0)
+  static const std::vector<std::uint8_t> kNoData;
+  const std::vector<std::uint8_t>* no_data = &kNoData;  // (set in §0)
   using internal::Judge;
   const Judge judge = [&](PipelineResult& r, std::string error) {
     r.ok = error.empty();
     r.error = std::move(error);
-    internal::quality_verdict(input, buffers.smoothed, no_data, seed_mm, r);
+    internal::quality_verdict(input, buffers.smoothed, *no_data, seed_mm, r);
   };
   bool judged = false;  // the second opinion's comparison has given `result` its verdict
   auto finish = [&](std::string error) {
@@ -358,7 +362,7 @@ PipelineResult run_pipeline(const volume::Volume& input, const Vec3f& seed_mm,
   // tracked seed that drifted out becomes a failed volume, not an exception.
   if (!seed_mm.allFinite() || !input.contains_mm(seed_mm))
     return finish("the seed lies outside the volume");
-  internal::smooth_stage(input, seed_mm, config, buffers, no_data, result);
+  no_data = &internal::smooth_stage(input, seed_mm, config, buffers, result);
   if (stop.stop_requested()) return finish("stopped");
   if (trackable(config, warm)) {
     try {

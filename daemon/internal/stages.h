@@ -13,11 +13,11 @@
 
 namespace sonomesh::daemon::internal {
 
-/// §0: what the balloon sees and its pre-filter (docs/stopping.md), into `buffers.smoothed`;
-/// `no_data` receives the probe's no-data mask for a dark target.
-void smooth_stage(const volume::Volume& input, const Vec3f& seed_mm, const PipelineConfig& config,
-                  PipelineBuffers& buffers, std::vector<std::uint8_t>& no_data,
-                  PipelineResult& result);
+/// §0: what the balloon sees and its pre-filter (docs/stopping.md), into `buffers.smoothed`.
+/// Returns the probe's no-data mask for a dark target (in `buffers`), else an empty one.
+const std::vector<std::uint8_t>& smooth_stage(const volume::Volume& input, const Vec3f& seed_mm,
+                                              const PipelineConfig& config,
+                                              PipelineBuffers& buffers, PipelineResult& result);
 
 /// The reconstruction's options for `input`: the configured ones, on cells of its finest spacing
 /// when `config.cell_from_voxel`.

@@ -172,30 +172,16 @@ TargetPolarity decide_polarity(const Volume& input, const Vec3f& seed_mm, float 
   return down > up ? TargetPolarity::Bright : TargetPolarity::Dark;
 }
 
-bool working_image(const Volume& input, TargetPolarity target,
-                   const std::vector<std::uint8_t>& no_data, Volume& out) {
-  const bool bright = target == TargetPolarity::Bright;
-  if (!bright && no_data.empty()) return false;
-  out = Volume(input.dims(), input.spacing_mm(), input.origin_mm(), volume::VoxelType::Float32);
-  out.set_direction(input.direction());
-  std::vector<float>& v =
-      out.f32();  // (converted in place: to_float's copy was a second 4 B/voxel)
-  with_voxels(input, [&](const auto& in) { std::copy(in.begin(), in.end(), v.begin()); });
-  if (bright) {
-    // I' = max − I: the brightest voxel becomes black, a bright organ a dark one in brighter
-    // surroundings, and the balloon's rules (relative cost, tissue level) apply unchanged.
-    const float top = *std::max_element(v.begin(), v.end());
-    for (float& x : v) x = top - x;
-    return true;
-  }
-  // No data: what lies at the sector's edge is taken to continue outwards (each no-data voxel
-  // within kFillLayers of the data takes the value of the data nearest to it, by a breadth-first
-  // sweep from the edge). That adds no wall of its own, so the wall levels the balloon measures
-  // are the data's. A balloon that still runs out past the filled band meets the zeros and leaks.
-  const Vec3i d = input.dims();
+namespace {
+
+using FillPlan = std::vector<std::pair<std::uint32_t, std::uint32_t>>;
+
+// The no-data fill's plan over `mask` on a grid of dims `d`: each no-data voxel within kFillLayers
+// of the data with the voxel it copies (the data nearest to it, by a breadth-first sweep from
+// the data's edge), in the order the copies are to be made.
+FillPlan fill_plan(const Vec3i& d, const std::vector<std::uint8_t>& mask) {
   const std::size_t nx = static_cast<std::size_t>(d.x()), ny = static_cast<std::size_t>(d.y()),
                     nz = static_cast<std::size_t>(d.z()), nxy = nx * ny;
-  std::vector<std::uint32_t> layer, next;
   auto neighbours = [&](std::size_t at, auto&& f) {
     const std::size_t i = at % nx, j = (at / nx) % ny, k = at / nxy;
     if (i > 0) f(at - 1);
@@ -205,7 +191,8 @@ bool working_image(const Volume& input, TargetPolarity target,
     if (k > 0) f(at - nxy);
     if (k + 1 < nz) f(at + nxy);
   };
-  std::vector<std::uint8_t> open(no_data.begin(), no_data.end());  // 1: still to fill
+  std::vector<std::uint8_t> open(mask);  // 1: still to fill
+  std::vector<std::uint32_t> layer, next;
   std::size_t at = 0;  // (the data's edge by rows: no index arithmetic per voxel)
   for (std::size_t k = 0; k < nz; ++k)
     for (std::size_t j = 0; j < ny; ++j)
@@ -214,17 +201,80 @@ bool working_image(const Volume& input, TargetPolarity target,
                           (j > 0 && open[at - nx]) || (j + 1 < ny && open[at + nx]) ||
                           (k > 0 && open[at - nxy]) || (k + 1 < nz && open[at + nxy])))
           layer.push_back(static_cast<std::uint32_t>(at));
+  FillPlan plan;
   for (int pass = 0; pass < kFillLayers && !layer.empty(); ++pass) {
     next.clear();
-    for (const std::uint32_t at : layer)
-      neighbours(at, [&](std::size_t to) {
+    for (const std::uint32_t from : layer)
+      neighbours(from, [&](std::size_t to) {
         if (!open[to]) return;
         open[to] = 0;
-        v[to] = v[at];
+        plan.emplace_back(static_cast<std::uint32_t>(to), from);
         next.push_back(static_cast<std::uint32_t>(to));
       });
     layer.swap(next);
   }
+  return plan;
+}
+
+// Whether `mask` (non-empty) is no_data_mask(input) still: every voxel of it is zero, and no
+// other zero lies beside it or on the border, where the flood would go on or start anew.
+bool still_holds(const Volume& input, const std::vector<std::uint8_t>& mask) {
+  const Vec3i d = input.dims();
+  const std::size_t nx = static_cast<std::size_t>(d.x()), ny = static_cast<std::size_t>(d.y()),
+                    nz = static_cast<std::size_t>(d.z()), nxy = nx * ny;
+  bool holds = true;
+  with_voxels(input, [&](const auto& v) {
+    std::size_t at = 0;
+    for (std::size_t k = 0; k < nz && holds; ++k)
+      for (std::size_t j = 0; j < ny && holds; ++j)
+        for (std::size_t i = 0; i < nx; ++i, ++at) {
+          if (mask[at] || v[at] != 0) {
+            holds = holds && (!mask[at] || v[at] == 0);
+            continue;
+          }
+          const bool border =
+              i == 0 || j == 0 || k == 0 || i + 1 == nx || j + 1 == ny || k + 1 == nz;
+          holds = holds && !border && !mask[at - 1] && !mask[at + 1] && !mask[at - nx] &&
+                  !mask[at + nx] && !mask[at - nxy] && !mask[at + nxy];
+        }
+  });
+  return holds;
+}
+
+}  // namespace
+
+bool update_no_data(const Volume& input, NoDataRegion& region) {
+  if (!region.mask.empty() && region.dims == input.dims() && still_holds(input, region.mask))
+    return true;
+  region.dims = input.dims();
+  region.mask = no_data_mask(input);
+  region.fill = region.mask.empty() ? FillPlan{} : fill_plan(input.dims(), region.mask);
+  return false;
+}
+
+bool working_image(const Volume& input, TargetPolarity target, const NoDataRegion& no_data,
+                   Volume& out) {
+  const bool bright = target == TargetPolarity::Bright;
+  if (!bright && no_data.mask.empty()) return false;
+  // (A buffer of the right size is kept: a fresh one is zero-filled first, then written again.)
+  if (out.type() != volume::VoxelType::Float32 || out.dims() != input.dims() ||
+      out.spacing_mm() != input.spacing_mm())
+    out = Volume(input.dims(), input.spacing_mm(), input.origin_mm(), volume::VoxelType::Float32);
+  out.set_origin_mm(input.origin_mm());
+  out.set_direction(input.direction());
+  std::vector<float>& v = out.f32();
+  with_voxels(input, [&](const auto& in) { std::copy(in.begin(), in.end(), v.begin()); });
+  if (bright) {
+    // I' = max − I: the brightest voxel becomes black, a bright organ a dark one in brighter
+    // surroundings, and the balloon's rules (relative cost, tissue level) apply unchanged.
+    const float top = *std::max_element(v.begin(), v.end());
+    for (float& x : v) x = top - x;
+    return true;
+  }
+  // No data: what lies at the sector's edge is taken to continue outwards (the fill's plan).
+  // That adds no wall of its own, so the wall levels the balloon measures are the data's. A
+  // balloon that still runs out past the filled band meets the zeros and leaks.
+  for (const auto& [to, from] : no_data.fill) v[to] = v[from];
   return true;
 }
 

@@ -22,12 +22,21 @@ std::vector<std::uint8_t> no_data_mask(const volume::Volume& input);
 /// decides; a tie or no departure at all is dark (the tool's default).
 TargetPolarity decide_polarity(const volume::Volume& input, const Vec3f& seed_mm, float grain_mm);
 
-/// What the balloon segments as a dark target, as Float32: the input inverted (max − I) for a
-/// bright target; for a dark one with a no-data region, that region filled with the nearest data
-/// (zeros are darker than any dark target: left as they are, the balloon runs out into them).
-/// Returns false when the input can be used as it is.
-bool working_image(const volume::Volume& input, TargetPolarity target,
-                   const std::vector<std::uint8_t>& no_data, volume::Volume& out);
+using NoDataRegion = PipelineBuffers::NoDataRegion;
+
+/// Makes `region` the no-data region of `input` (the mask no_data_mask gives, and the plan of
+/// working_image's fill over it). A region kept from the last volume stays when it still holds:
+/// every voxel of it is zero and no other zero lies beside it or on the border. Returns whether
+/// it was kept.
+bool update_no_data(const volume::Volume& input, NoDataRegion& region);
+
+/// What the balloon segments as a dark target, as Float32 in `out` (its buffer kept when it has
+/// the size): the input inverted (max − I) for a bright target; for a dark one with a no-data
+/// region, each voxel of the region within 16 voxels of the data given the value of the data
+/// nearest to it (zeros are darker than any dark target: left as they are, the balloon runs out
+/// into them). Returns false when the input can be used as it is.
+bool working_image(const volume::Volume& input, TargetPolarity target, const NoDataRegion& no_data,
+                   volume::Volume& out);
 
 /// Share of the surface's vertices (up to 4000 of them, evenly spread) with a wall beyond them in
 /// the smoothed image the balloon saw: the mean 2-5 voxels outside above the mean 1-3 voxels
