@@ -168,9 +168,18 @@ std::vector<FilledCell> fill_dark_tunnels(volume::Volume& chi, float iso, float 
                                           const volume::Volume& image, float dark_below,
                                           int threads = 0);
 
+/// The same for a tunnel through the dark that no slice across an axis cuts into a closed hole
+/// (one running obliquely): the outside cells the inside closed by a cube of 4 cells' half-width
+/// (dilated, then eroded) takes in, where the image there is under `dark_below`.
+std::vector<FilledCell> fill_dark_closing(volume::Volume& chi, float iso, float inside_value,
+                                          const volume::Volume& image, float dark_below);
+
 /// fill_dark_tunnels on the surface's χ (`image` the smoothed volume with the target dark), then
-/// marching cubes and the seed's component again. Kept, returning true, only where that lowered
-/// the genus and the surface is closed and encloses the seed; otherwise `surface` is unchanged.
+/// marching cubes and the seed's component again; on a surface of two handles or more whose
+/// genus that did not lower, fill_dark_closing instead, at the level half way from the image's
+/// at the seed to `dark_below`. Kept, returning true, only where that
+/// lowered the genus and the surface is closed and encloses the seed; otherwise `surface` is
+/// unchanged.
 bool close_dark_tunnels(SurfaceResult& surface, const Vec3f& seed_mm, const volume::Volume& image,
                         float dark_below, int threads = 0);
 

@@ -1,5 +1,6 @@
 // Filling the surface's tunnels through the target's own darkness (reconstruct.h).
 #include <algorithm>
+#include <cstdint>
 #include <limits>
 #include <vector>
 
@@ -88,6 +89,95 @@ float max_image(const volume::Volume& chi, const volume::Volume& image,
   return brightest;
 }
 
+// The closing's half-width in χ cells: a handle through the target's darkness up to twice this
+// across is closed (the false one seen beside a needle was 4-7 cells across); a torus's hole
+// holds tissue, bright, and stays whatever its width.
+constexpr int kClosingCells = 4;
+
+// A box of cells as bits, 64 along x per word, each (y, z) row starting a word; cells beyond the
+// box are 0. The closing's passes then take 64 cells per operation.
+class BitBox {
+ public:
+  explicit BitBox(const Vec3i& dims)
+      : dims_(dims), words_((dims.x() + 63) / 64), bits_(row(0, dims.z()), 0) {}
+  bool get(int i, int j, int k) const { return bits_[row(j, k) + i / 64] >> (i % 64) & 1u; }
+  void set(int i, int j, int k) { bits_[row(j, k) + i / 64] |= std::uint64_t{1} << (i % 64); }
+  // Each cell the OR (dilate) or AND (erode) of the cells within r of it along every axis in
+  // turn: a cube of half-width r.
+  void dilate(int r) {
+    for (int axis = 0; axis < 3; ++axis) pass(axis, r, true);
+  }
+  void erode(int r) {
+    for (int axis = 0; axis < 3; ++axis) pass(axis, r, false);
+  }
+
+ private:
+  std::size_t row(int j, int k) const {
+    return (static_cast<std::size_t>(k) * dims_.y() + j) * words_;
+  }
+  // Row `from` (words_ words) shifted by d cells along x (d > 0: towards larger x), 0 shifted in.
+  void shifted(const std::uint64_t* from, int d, std::uint64_t* to) const {
+    for (int w = 0; w < words_; ++w) {
+      std::uint64_t v = 0;
+      if (d > 0) {
+        v = from[w] << d;
+        if (w > 0) v |= from[w - 1] >> (64 - d);
+      } else {
+        v = from[w] >> -d;
+        if (w + 1 < words_) v |= from[w + 1] << (64 + d);
+      }
+      to[w] = v;
+    }
+  }
+  void pass(int axis, int r, bool dilate) {
+    const std::vector<std::uint64_t> in = bits_;
+    std::vector<std::uint64_t> other(static_cast<std::size_t>(words_));
+    for (int k = 0; k < dims_.z(); ++k)
+      for (int j = 0; j < dims_.y(); ++j) {
+        std::uint64_t* out = &bits_[row(j, k)];
+        for (int d = -r; d <= r; ++d) {
+          if (d == 0) continue;
+          const std::uint64_t* from = other.data();
+          if (axis == 0) {
+            shifted(&in[row(j, k)], d, other.data());
+          } else {
+            const int jj = axis == 1 ? j + d : j, kk = axis == 2 ? k + d : k;
+            const bool inside = jj >= 0 && jj < dims_.y() && kk >= 0 && kk < dims_.z();
+            if (inside)
+              from = &in[row(jj, kk)];
+            else
+              std::fill(other.begin(), other.end(), 0);
+          }
+          for (int w = 0; w < words_; ++w) out[w] = dilate ? out[w] | from[w] : out[w] & from[w];
+        }
+        if (dims_.x() % 64) out[words_ - 1] &= (std::uint64_t{1} << dims_.x() % 64) - 1;
+      }
+  }
+
+  Vec3i dims_;
+  int words_;
+  std::vector<std::uint64_t> bits_;
+};
+
+// Marching cubes and the seed's component again on χ as `filled` left it: kept, returning true,
+// where that lowered the genus and the surface is closed and encloses the seed; else χ is given
+// back.
+bool remesh_if_fewer_handles(SurfaceResult& surface, const Vec3f& seed_mm,
+                             const std::vector<FilledCell>& filled) {
+  volume::Volume& chi = surface.indicator;
+  if (filled.empty()) return false;
+  bool enclosed = false;
+  Mesh mesh = mesh::component_enclosing(marching_cubes(chi, surface.iso), seed_mm, &enclosed);
+  const Topology topology = analyze_topology(mesh);
+  if (!enclosed || topology.genus >= surface.topology.genus || !topology.watertight) {
+    for (const FilledCell& cell : filled) chi.f32()[cell.index] = cell.was;
+    return false;
+  }
+  surface.mesh = std::move(mesh);
+  surface.topology = topology;
+  return true;
+}
+
 }  // namespace
 
 std::vector<FilledCell> fill_dark_tunnels(volume::Volume& chi, float iso, float inside_value,
@@ -121,6 +211,34 @@ std::vector<FilledCell> fill_dark_tunnels(volume::Volume& chi, float iso, float 
   return filled;
 }
 
+std::vector<FilledCell> fill_dark_closing(volume::Volume& chi, float iso, float inside_value,
+                                          const volume::Volume& image, float dark_below) {
+  std::vector<FilledCell> filled;
+  const std::pair<Vec3i, Vec3i> box = inside_box(chi, iso);
+  const Vec3i lo = (box.first - Vec3i::Constant(kClosingCells)).cwiseMax(Vec3i::Zero());
+  const Vec3i hi =
+      (box.second + Vec3i::Constant(kClosingCells)).cwiseMin(chi.dims() - Vec3i::Ones());
+  if ((hi - lo).minCoeff() < 0) return filled;
+  BitBox closed(hi - lo + Vec3i::Ones());
+  for (int k = lo.z(); k <= hi.z(); ++k)
+    for (int j = lo.y(); j <= hi.y(); ++j)
+      for (int i = lo.x(); i <= hi.x(); ++i)
+        if (chi.f32()[chi.linear_index(i, j, k)] > iso)
+          closed.set(i - lo.x(), j - lo.y(), k - lo.z());
+  closed.dilate(kClosingCells);
+  closed.erode(kClosingCells);
+  for (int k = lo.z(); k <= hi.z(); ++k)
+    for (int j = lo.y(); j <= hi.y(); ++j)
+      for (int i = lo.x(); i <= hi.x(); ++i) {
+        const std::size_t c = chi.linear_index(i, j, k);
+        if (!closed.get(i - lo.x(), j - lo.y(), k - lo.z()) || chi.f32()[c] > iso) continue;
+        if (volume::sample_mm(image, chi.index_to_mm(Vec3f(i, j, k))) >= dark_below) continue;
+        filled.push_back({c, chi.f32()[c]});
+        chi.f32()[c] = inside_value;
+      }
+  return filled;
+}
+
 bool close_dark_tunnels(SurfaceResult& surface, const Vec3f& seed_mm, const volume::Volume& image,
                         float dark_below, int threads) {
   if (surface.topology.genus <= 0 || surface.indicator.empty()) return false;
@@ -129,19 +247,19 @@ bool close_dark_tunnels(SurfaceResult& surface, const Vec3f& seed_mm, const volu
   if (!(at_seed > surface.iso)) return false;
   const float inside_value = 0.5f * (surface.iso + at_seed);
   // χ is filled in place and given back unless the genus fell (no copy of the grid per volume).
-  const std::vector<FilledCell> filled =
-      fill_dark_tunnels(chi, surface.iso, inside_value, image, dark_below, threads);
-  if (filled.empty()) return false;
-  bool enclosed = false;
-  Mesh mesh = mesh::component_enclosing(marching_cubes(chi, surface.iso), seed_mm, &enclosed);
-  const Topology topology = analyze_topology(mesh);
-  if (!enclosed || topology.genus >= surface.topology.genus || !topology.watertight) {
-    for (const FilledCell& cell : filled) chi.f32()[cell.index] = cell.was;
-    return false;
-  }
-  surface.mesh = std::move(mesh);
-  surface.topology = topology;
-  return true;
+  if (remesh_if_fewer_handles(
+          surface, seed_mm,
+          fill_dark_tunnels(chi, surface.iso, inside_value, image, dark_below, threads)))
+    return true;
+  // More than one handle: one of them may be a dark tunnel running obliquely, which no slice
+  // across an axis cuts into a closed hole (a single needle's tunnel is the common case, and
+  // its own gap is not worth the closing's passes). The closing also takes in the concave
+  // places the surface passes, on the wall's flank: it asks for darkness half way from the
+  // seed's level to `dark_below`, which the flank does not reach.
+  if (surface.topology.genus < 2) return false;
+  const float closing_below = 0.5f * (volume::sample_mm(image, seed_mm) + dark_below);
+  return remesh_if_fewer_handles(
+      surface, seed_mm, fill_dark_closing(chi, surface.iso, inside_value, image, closing_below));
 }
 
 }  // namespace sonomesh::reconstruct

@@ -1,6 +1,9 @@
 // A tunnel through the target's own darkness is filled; one round a bright needle stays.
 #include <gtest/gtest.h>
 
+#include <Eigen/Geometry>
+#include <cmath>
+
 #include "reconstruct/reconstruct.h"
 
 namespace sonomesh::reconstruct {
@@ -69,6 +72,52 @@ TEST(DarkTunnels, CountsTheCellsItFills) {
   // ball's cross-section encloses them): at least its volume once.
   EXPECT_GT(filled, 300);
   EXPECT_GT(volume::sample_mm(p.chi, Vec3f(32, 32, 32)), 0.5f);
+}
+
+// A ball of radius 12 pierced along z through its centre by a bright needle, with a handle on its
+// wall: a ring (radius 5, tube radius 2) half sunk into it, in a plane oblique to every axis (its
+// normal along (-1, -1, 2)), over a pocket as dark as the inside. Every slice across an axis
+// cuts the handle into two separate discs, so the pocket is no closed hole in any of them.
+Pierced needle_and_handle() {
+  Pierced p = pierced_ball(100.0f);
+  const Vec3f centre(32, 32, 32);
+  const Vec3f out = Vec3f(1, -1, 0).normalized(), along = Vec3f(1, 1, 1).normalized();
+  const Vec3f normal = out.cross(along);
+  const Vec3f ring_centre = centre + 12.0f * out;
+  for (int k = 0; k < 64; ++k)
+    for (int j = 0; j < 64; ++j)
+      for (int i = 0; i < 64; ++i) {
+        const Vec3f q(i, j, k);
+        const Vec3f d = q - centre, r = q - ring_centre;
+        const float height = r.dot(normal);
+        const float radial = (r - height * normal).norm();
+        const bool needle = std::hypot(d.x(), d.y()) < 2.5f;
+        const bool ball = d.norm() < 12.0f;
+        const bool ring = std::hypot(radial - 5.0f, height) < 2.0f;
+        const bool pocket = !ball && !ring && radial < 5.0f && std::abs(height) < 2.0f;
+        const std::size_t at = p.chi.linear_index(i, j, k);
+        p.chi.f32()[at] = (ball || ring) && !needle ? 1.0f : 0.0f;
+        p.image.f32()[at] = needle || !(ball || ring || pocket) ? 100.0f : 20.0f;
+      }
+  p.seed_mm = Vec3f(26, 38, 32);  // inside, off the needle
+  return p;
+}
+
+TEST(DarkTunnels, AHandleNoSliceClosesIsFilledAndTheNeedleStays) {
+  const Pierced p = needle_and_handle();
+  SurfaceResult s = surface_of(p);
+  ASSERT_EQ(s.topology.genus, 2);
+  volume::Volume chi = p.chi;
+  fill_dark_tunnels(chi, 0.5f, 1.0f, p.image, 60.0f);
+  bool enclosed = false;
+  EXPECT_EQ(
+      analyze_topology(component_enclosing(marching_cubes(chi, 0.5f), p.seed_mm, &enclosed)).genus,
+      2)
+      << "the slices close the handle: the test does not reach the closing";
+  EXPECT_TRUE(close_dark_tunnels(s, p.seed_mm, p.image, 60.0f));
+  EXPECT_EQ(s.topology.genus, 1);  // the needle's
+  EXPECT_TRUE(s.topology.watertight);
+  EXPECT_LT(volume::sample_mm(s.indicator, Vec3f(32, 32, 32)), 0.5f);  // on the needle
 }
 
 }  // namespace
