@@ -1,5 +1,6 @@
 // Filling the surface's tunnels through the target's own darkness (reconstruct.h).
 #include <algorithm>
+#include <bit>
 #include <cstdint>
 #include <limits>
 #include <vector>
@@ -68,13 +69,18 @@ std::vector<std::vector<Vec3i>> slice_holes(const Slice& slice, float iso) {
 // and its rim is outside. Empty (lo > hi) when nothing is inside.
 std::pair<Vec3i, Vec3i> inside_box(const volume::Volume& chi, float iso) {
   Vec3i lo = chi.dims(), hi = Vec3i::Constant(-1);
+  const int nx = chi.dims().x();
+  const float* row = chi.f32().data();
   for (int k = 0; k < chi.dims().z(); ++k)
-    for (int j = 0; j < chi.dims().y(); ++j)
-      for (int i = 0; i < chi.dims().x(); ++i)
-        if (chi.f32()[chi.linear_index(i, j, k)] > iso) {
-          lo = lo.cwiseMin(Vec3i(i, j, k));
-          hi = hi.cwiseMax(Vec3i(i, j, k));
-        }
+    for (int j = 0; j < chi.dims().y(); ++j, row += nx) {
+      // A row's first and last inside cell (rows are read as they lie in memory).
+      int first = 0, last = nx - 1;
+      while (first < nx && !(row[first] > iso)) ++first;
+      if (first == nx) continue;
+      while (!(row[last] > iso)) --last;
+      lo = lo.cwiseMin(Vec3i(first, j, k));
+      hi = hi.cwiseMax(Vec3i(last, j, k));
+    }
   return {(lo - Vec3i::Ones()).cwiseMax(Vec3i::Zero()),
           (hi + Vec3i::Ones()).cwiseMin(chi.dims() - Vec3i::Ones())};
 }
@@ -100,8 +106,16 @@ class BitBox {
  public:
   explicit BitBox(const Vec3i& dims)
       : dims_(dims), words_((dims.x() + 63) / 64), bits_(row(0, dims.z()), 0) {}
-  bool get(int i, int j, int k) const { return bits_[row(j, k) + i / 64] >> (i % 64) & 1u; }
   void set(int i, int j, int k) { bits_[row(j, k) + i / 64] |= std::uint64_t{1} << (i % 64); }
+  // f(i, j, k) for each cell set here and not in `other` (a box of the same dims).
+  template <typename F>
+  void for_each_not_in(const BitBox& other, F&& f) const {
+    for (int k = 0; k < dims_.z(); ++k)
+      for (int j = 0; j < dims_.y(); ++j)
+        for (int w = 0; w < words_; ++w)
+          for (std::uint64_t v = bits_[row(j, k) + w] & ~other.bits_[row(j, k) + w]; v; v &= v - 1)
+            f(64 * w + std::countr_zero(v), j, k);
+  }
   // Each cell the OR (dilate) or AND (erode) of the cells within r of it along every axis in
   // turn: a cube of half-width r.
   void dilate(int r) {
@@ -219,23 +233,22 @@ std::vector<FilledCell> fill_dark_closing(volume::Volume& chi, float iso, float 
   const Vec3i hi =
       (box.second + Vec3i::Constant(kClosingCells)).cwiseMin(chi.dims() - Vec3i::Ones());
   if ((hi - lo).minCoeff() < 0) return filled;
-  BitBox closed(hi - lo + Vec3i::Ones());
+  BitBox inside(hi - lo + Vec3i::Ones());
   for (int k = lo.z(); k <= hi.z(); ++k)
     for (int j = lo.y(); j <= hi.y(); ++j)
       for (int i = lo.x(); i <= hi.x(); ++i)
         if (chi.f32()[chi.linear_index(i, j, k)] > iso)
-          closed.set(i - lo.x(), j - lo.y(), k - lo.z());
+          inside.set(i - lo.x(), j - lo.y(), k - lo.z());
+  BitBox closed = inside;
   closed.dilate(kClosingCells);
   closed.erode(kClosingCells);
-  for (int k = lo.z(); k <= hi.z(); ++k)
-    for (int j = lo.y(); j <= hi.y(); ++j)
-      for (int i = lo.x(); i <= hi.x(); ++i) {
-        const std::size_t c = chi.linear_index(i, j, k);
-        if (!closed.get(i - lo.x(), j - lo.y(), k - lo.z()) || chi.f32()[c] > iso) continue;
-        if (volume::sample_mm(image, chi.index_to_mm(Vec3f(i, j, k))) >= dark_below) continue;
-        filled.push_back({c, chi.f32()[c]});
-        chi.f32()[c] = inside_value;
-      }
+  closed.for_each_not_in(inside, [&](int i, int j, int k) {
+    const Vec3i cell = lo + Vec3i(i, j, k);
+    if (volume::sample_mm(image, chi.index_to_mm(cell.cast<float>())) >= dark_below) return;
+    const std::size_t c = chi.linear_index(cell.x(), cell.y(), cell.z());
+    filled.push_back({c, chi.f32()[c]});
+    chi.f32()[c] = inside_value;
+  });
   return filled;
 }
 
