@@ -176,12 +176,12 @@ std::vector<FilledCell> fill_dark_closing(volume::Volume& chi, float iso, float 
 
 /// fill_dark_tunnels on the surface's χ (`image` the smoothed volume with the target dark), then
 /// marching cubes and the seed's component again; on a surface of two handles or more whose
-/// genus that did not lower, fill_dark_closing instead, at the level half way from the image's
-/// at the seed to `dark_below`. Kept, returning true, only where that
-/// lowered the genus and the surface is closed and encloses the seed; otherwise `surface` is
-/// unchanged.
+/// genus that did not lower, fill_dark_closing instead, at the level half way from
+/// `target_level` (the target's own, e.g. the balloon's seed region's) to `dark_below`. Kept,
+/// returning true, only where that lowered the genus and the surface is closed and encloses the
+/// seed; otherwise `surface` is unchanged.
 bool close_dark_tunnels(SurfaceResult& surface, const Vec3f& seed_mm, const volume::Volume& image,
-                        float dark_below, int threads = 0);
+                        float dark_below, float target_level, int threads = 0);
 
 /// Label volume on the grid of `like` (UInt8, same dims/spacing/origin): 1 where the voxel centre
 /// is inside the closed mesh, by ray parity along x per (j, k) row. Rays are offset by a tiny,

@@ -195,8 +195,8 @@ void close_false_tunnels(const volume::Volume& smoothed, const Vec3f& seed_mm, i
   const bool implausible = surface.topology.genus > internal::kMostHandles;
   const float fill_below =
       implausible ? stats.tissue_level + 0.5f * contrast : stats.seed_level + 0.5f * contrast;
-  const bool closed =
-      reconstruct::close_dark_tunnels(surface, seed_mm, smoothed, fill_below, threads);
+  const bool closed = reconstruct::close_dark_tunnels(surface, seed_mm, smoothed, fill_below,
+                                                      stats.seed_level, threads);
   (implausible ? result.tissue_columns_filled : result.dark_tunnels_closed) = closed;
 }
 

@@ -253,7 +253,7 @@ std::vector<FilledCell> fill_dark_closing(volume::Volume& chi, float iso, float 
 }
 
 bool close_dark_tunnels(SurfaceResult& surface, const Vec3f& seed_mm, const volume::Volume& image,
-                        float dark_below, int threads) {
+                        float dark_below, float target_level, int threads) {
   if (surface.topology.genus <= 0 || surface.indicator.empty()) return false;
   volume::Volume& chi = surface.indicator;
   const float at_seed = volume::sample_mm(chi, seed_mm);
@@ -268,9 +268,9 @@ bool close_dark_tunnels(SurfaceResult& surface, const Vec3f& seed_mm, const volu
   // across an axis cuts into a closed hole (a single needle's tunnel is the common case, and
   // its own gap is not worth the closing's passes). The closing also takes in the concave
   // places the surface passes, on the wall's flank: it asks for darkness half way from the
-  // seed's level to `dark_below`, which the flank does not reach.
+  // target's level to `dark_below`, which the flank does not reach.
   if (surface.topology.genus < 2) return false;
-  const float closing_below = 0.5f * (volume::sample_mm(image, seed_mm) + dark_below);
+  const float closing_below = 0.5f * (target_level + dark_below);
   return remesh_if_fewer_handles(
       surface, seed_mm, fill_dark_closing(chi, surface.iso, inside_value, image, closing_below));
 }

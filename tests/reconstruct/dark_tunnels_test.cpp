@@ -50,7 +50,7 @@ TEST(DarkTunnels, ATunnelAsDarkAsTheInsideIsFilled) {
   const Pierced p = pierced_ball(20.0f);
   SurfaceResult s = surface_of(p);
   ASSERT_EQ(s.topology.genus, 1);
-  EXPECT_TRUE(close_dark_tunnels(s, p.seed_mm, p.image, 60.0f));
+  EXPECT_TRUE(close_dark_tunnels(s, p.seed_mm, p.image, 60.0f, 20.0f));
   EXPECT_EQ(s.topology.genus, 0);
   EXPECT_TRUE(s.topology.watertight);
   EXPECT_EQ(s.topology.components, 1);
@@ -60,7 +60,7 @@ TEST(DarkTunnels, ATunnelRoundABrightNeedleStays) {
   const Pierced p = pierced_ball(100.0f);
   SurfaceResult s = surface_of(p);
   const std::size_t vertices = s.mesh.vertices.size();
-  EXPECT_FALSE(close_dark_tunnels(s, p.seed_mm, p.image, 60.0f));
+  EXPECT_FALSE(close_dark_tunnels(s, p.seed_mm, p.image, 60.0f, 20.0f));
   EXPECT_EQ(s.topology.genus, 1);
   EXPECT_EQ(s.mesh.vertices.size(), vertices);
 }
@@ -114,7 +114,7 @@ TEST(DarkTunnels, AHandleNoSliceClosesIsFilledAndTheNeedleStays) {
       analyze_topology(component_enclosing(marching_cubes(chi, 0.5f), p.seed_mm, &enclosed)).genus,
       2)
       << "the slices close the handle: the test does not reach the closing";
-  EXPECT_TRUE(close_dark_tunnels(s, p.seed_mm, p.image, 60.0f));
+  EXPECT_TRUE(close_dark_tunnels(s, p.seed_mm, p.image, 60.0f, 20.0f));
   EXPECT_EQ(s.topology.genus, 1);  // the needle's
   EXPECT_TRUE(s.topology.watertight);
   EXPECT_LT(volume::sample_mm(s.indicator, Vec3f(32, 32, 32)), 0.5f);  // on the needle
