@@ -68,6 +68,8 @@ nlohmann::json report_json(const PipelineResult& result, const std::string& inpu
                          {"self_intersection", s.self_intersection},
                          {"iteration_limit", s.iteration_limit}}},
                        {"opened_points", result.opened_points}};
+  // Ended before the limit because it swept nothing new: its movers count as at the limit.
+  if (result.balloon_stats.swept_out) report["balloon"]["swept_out"] = true;
   // A leaked balloon's surface is the one from before the leak (quality "leak bound").
   if (result.balloon_stats.leaked)
     report["balloon"]["leak_rollback_iteration"] = result.balloon_stats.leak_rollback_iteration;

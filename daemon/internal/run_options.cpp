@@ -290,6 +290,10 @@ std::vector<OptionSpec> balloon_options() {
                   BAL(stall_window_iterations)));
   o.push_back(num(t, "stall_motion_vox", "vox", closed(0, 10), "least motion over the window",
                   BAL(stall_motion_vox)));
+  o.push_back(num(t, "swept_out_windows", "windows", closed(0, 1e4),
+                  "end once A_t stops growing this long; 0 off", BAL(swept_out_windows)));
+  o.push_back(
+      flag(t, "open_folds", "a stopped vertex with swept space ahead is type 1", BAL(open_folds)));
   o.push_back(num(t, "threads", "threads", closed(0, 256), "0: the machine's cores", BAL(threads)));
   return o;
 }

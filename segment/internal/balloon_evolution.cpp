@@ -8,6 +8,8 @@
 #include <atomic>
 #include <cmath>
 
+#include "segment/internal/warm_start.h"
+
 namespace sonomesh::segment::internal {
 namespace {
 
@@ -79,6 +81,7 @@ void BalloonEvolution::begin() {
   for (const std::uint32_t v : active_) moved_[v] = kMoved | kMarks;
   compute_normals();
   mark_front();
+  swept_at_window_ = marks_.grid().marked_count();
 }
 
 void BalloonEvolution::all_active() {
@@ -100,9 +103,16 @@ void BalloonEvolution::run(std::stop_token stop) {
       all_stopped_ = true;
       break;
     }
-    if (it % options_.stall_window_iterations == 0 && stall_test(now_moving)) {
-      stats_.stalled = true;
-      break;
+    if (it % options_.stall_window_iterations == 0) {
+      if (swept_nothing_new()) {
+        // As the stall test below would call it (a few movers in a crease), or as the limit would.
+        (few_moving(now_moving) ? stats_.stalled : stats_.swept_out) = true;
+        break;
+      }
+      if (stall_test(now_moving)) {
+        stats_.stalled = true;
+        break;
+      }
     }
     if (it % options_.remesh_every_iterations == 0 && needs_remesh()) {
       remesh();
@@ -119,6 +129,7 @@ void BalloonEvolution::run(std::stop_token stop) {
       if (r == StopReason::Moving) r = StopReason::IterationLimit;
   write_back(a_, window_, bm_);
   bm_.garbage_collection();
+  if (options_.open_folds) open_folds();
   stats_.front_voxels = marks_.grid().marked_count();
   stats_.front_grid_bytes = marks_.grid().memory_bytes();
 }
@@ -325,8 +336,49 @@ bool BalloonEvolution::stall_test(int now_moving) {
   }
   windows_without_drop_ = now_moving < fewest_moving_ ? 0 : windows_without_drop_ + 1;
   fewest_moving_ = std::min(fewest_moving_, now_moving);
-  const bool few = now_moving <= std::max(10, static_cast<int>(a_.pos.size() / 100));
-  return !progress || (few && windows_without_drop_ >= 3);
+  return !progress || (few_moving(now_moving) && windows_without_drop_ >= 3);
+}
+
+bool BalloonEvolution::few_moving(int now_moving) const {
+  return now_moving <= std::max(10, static_cast<int>(a_.pos.size() / 100));
+}
+
+// Whether A_t has not grown over the last swept_out_windows stall windows: what still moves only
+// moves in voxels already swept (a fold's vertices trading places), and nothing changes by the
+// iteration limit. (One window was too short: a 64³ double torus's crawl round its ring paused.)
+bool BalloonEvolution::swept_nothing_new() {
+  const std::size_t swept = marks_.grid().marked_count();
+  windows_unswept_ = swept == swept_at_window_ ? windows_unswept_ + 1 : 0;
+  swept_at_window_ = swept;
+  return options_.swept_out_windows > 0 && windows_unswept_ >= options_.swept_out_windows;
+}
+
+// A vertex the boundary cost stopped, with the other side of the balloon two voxels ahead of it,
+// is a fold of the balloon, not its wall: it is type 1, as if it had taken the step into what was
+// swept (the opening removes it). Kept as a wall, a fold's sheets are extra layers of the surface
+// in the samples, and the indicator counts each layer (in a shadowed cavity: χ ran 0.3-4 at the
+// samples, the iso value cut a wall off).
+void BalloonEvolution::open_folds() {
+  const std::vector<Vec3f> normal = vertex_normals(bm_);
+  const FrontGrid::Reader reader(marks_.grid());
+  for (std::uint32_t v = 0; v < bm_.n_vertices(); ++v) {
+    VertexState& s = bm_.state(Vertex{v});
+    if (s.reason == StopReason::Boundary && !normal[v].isZero() &&
+        swept_all_the_way(reader, bm_.point_mm(Vertex{v}), normal[v]))
+      s.reason = StopReason::SelfIntersection;
+  }
+}
+
+// Whether A_t holds p + k·n for k = 1, 1.5 and 2 voxels: the whole way, so that a thin
+// structure outside the balloon (a needle's tunnel, one voxel wide or more) is not seen through.
+bool BalloonEvolution::swept_all_the_way(const FrontGrid::Reader& reader, const Vec3f& p,
+                                         const Vec3f& n) const {
+  const float vox_mm = smoothed_.spacing_mm().minCoeff();
+  for (const float k : {1.0f, 1.5f, 2.0f}) {
+    Vec3i ijk;
+    if (!marks_.voxel(p + (k * vox_mm) * n, ijk) || !reader.marked(ijk)) return false;
+  }
+  return true;
 }
 
 // Remeshing costs O(mesh): it runs only when an edge with a moving end is out of range.

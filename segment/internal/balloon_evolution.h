@@ -86,6 +86,10 @@ class BalloonEvolution {
   void mark_front();
   void stage_samples(std::uint32_t v, const FrontGrid::Reader& reader);
   bool stall_test(int now_moving);
+  bool swept_nothing_new();
+  bool few_moving(int now_moving) const;
+  void open_folds();
+  bool swept_all_the_way(const FrontGrid::Reader& reader, const Vec3f& p, const Vec3f& n) const;
   bool needs_remesh() const;
   void remesh();
   void keep_before_leak(int iteration, int now_moving);
@@ -122,6 +126,8 @@ class BalloonEvolution {
   bool all_stopped_ = false;
   int fewest_moving_ = std::numeric_limits<int>::max();
   int windows_without_drop_ = 0;
+  std::size_t swept_at_window_ = 0;  // |A_t| at the last stall test
+  int windows_unswept_ = 0;          // stall windows since |A_t| last grew
 };
 
 }  // namespace sonomesh::segment::internal

@@ -52,6 +52,7 @@ std::string validate(const BalloonOptions& o) {
   if (!(o.max_area_mm2 >= 0.0f)) return "max_area_mm2 must be >= 0 (0 = no bound)";
   if (o.max_leak_seals < 0) return "max_leak_seals must be >= 0";
   if (o.stall_window_iterations < 1) return "stall_window_iterations must be >= 1";
+  if (o.swept_out_windows < 0) return "swept_out_windows must be >= 0";
   if (o.threads < 0) return "threads must be >= 0";
   return {};
 }

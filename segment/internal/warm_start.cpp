@@ -42,7 +42,8 @@ std::vector<Vec3f> vertex_normals(const Mesh& m) {
       });
 }
 
-// The same for a BalloonMesh, its deleted faces left out.
+}  // namespace
+
 std::vector<Vec3f> vertex_normals(const BalloonMesh& m) {
   return area_weighted_normals(
       m.n_vertices(), [&](std::uint32_t v) { return m.point_mm(Vertex{v}); },
@@ -54,8 +55,6 @@ std::vector<Vec3f> vertex_normals(const BalloonMesh& m) {
         }
       });
 }
-
-}  // namespace
 
 std::string check_start_safe(const BalloonMesh& start, const ImageSampler& sampler,
                              const CostScale& scale, float wall_level, const StepKernel& box,

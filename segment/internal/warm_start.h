@@ -5,6 +5,7 @@
 
 #include <span>
 #include <string>
+#include <vector>
 
 #include "segment/internal/balloon_mesh.h"
 #include "segment/internal/image_sampler.h"
@@ -12,6 +13,9 @@
 #include "segment/internal/stop_rules.h"
 
 namespace sonomesh::segment::internal {
+
+/// Area-weighted unit vertex normals of `m` (zero where the faces cancel), deleted faces left out.
+std::vector<Vec3f> vertex_normals(const BalloonMesh& m);
 
 /// The check on the new volume: every vertex and every edge midpoint of `start` lies in the
 /// step's box and below `wall_level` (the cost rule's "inside", in the cost's scale), all but
