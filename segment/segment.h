@@ -99,8 +99,8 @@ struct BalloonOptions {
   int max_leak_seals = 6;
   int stall_window_iterations = 20;  // stop when no moving vertex got further than
   float stall_motion_vox = 0.02f;    // stall_motion_vox per iteration over this window
-  // End when A_t has not grown over this many stall windows, the movers as at the iteration
-  // limit (BalloonStats::swept_out); 0: run to the limit.
+  // End when A_t has not grown over this many stall windows, the movers in folds type 1 and the
+  // rest as at the iteration limit (BalloonStats::swept_out); 0: run to the limit.
   int swept_out_windows = 3;
   // A vertex the cost stopped with the balloon's swept inside ahead of it is a fold, type 1
   // (docs/stopping.md item 16); false keeps it as a wall.
@@ -137,7 +137,7 @@ struct BalloonStats {
   double remesh_ms = 0.0;
   std::int64_t vertex_iterations = 0;  // moving vertices summed over the iterations
   bool stalled = false;                // ended because nothing moved any more
-  bool swept_out = false;              // ended early, A_t not growing (movers: IterationLimit)
+  bool swept_out = false;              // ended early, A_t not growing (swept_out_windows)
   bool cancelled = false;              // ended because the stop_token was triggered
   bool leaked = false;                 // ended at the leak bound (max_area_fraction)
   // Leaked, and the balloon is the one from this iteration, before the leak began (0: none kept,

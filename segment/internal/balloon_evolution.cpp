@@ -353,8 +353,8 @@ bool BalloonEvolution::swept_nothing_new() {
   return options_.swept_out_windows > 0 && windows_unswept_ >= options_.swept_out_windows;
 }
 
-// A vertex the boundary cost stopped, with the other side of the balloon two voxels ahead of it,
-// is a fold of the balloon, not its wall: it is type 1, as if it had taken the step into what was
+// A vertex the boundary cost stopped, with the other side of the balloon ahead of it and no wall,
+// is a fold of the balloon: it is type 1, as if it had taken the step into what was
 // swept (the opening removes it). Kept as a wall, a fold's sheets are extra layers of the surface
 // in the samples, and the indicator counts each layer (in a shadowed cavity: χ ran 0.3-4 at the
 // samples, the iso value cut a wall off).
@@ -364,20 +364,26 @@ void BalloonEvolution::open_folds() {
   for (std::uint32_t v = 0; v < bm_.n_vertices(); ++v) {
     VertexState& s = bm_.state(Vertex{v});
     if (s.reason == StopReason::Boundary && !normal[v].isZero() &&
-        swept_all_the_way(reader, bm_.point_mm(Vertex{v}), normal[v]))
+        in_fold(reader, bm_.point_mm(Vertex{v}), normal[v]))
       s.reason = StopReason::SelfIntersection;
   }
 }
 
-// Whether A_t holds p + k·n for k = 1, 1.5 and 2 voxels: the whole way, so that a thin
-// structure outside the balloon (a needle's tunnel, one voxel wide or more) is not seen through.
-bool BalloonEvolution::swept_all_the_way(const FrontGrid::Reader& reader, const Vec3f& p,
-                                         const Vec3f& n) const {
+// Whether p with normal n is in a fold: A_t holds p + k·n for k = 1, 1.5 and 2 voxels (the whole
+// way, so that a thin structure outside the balloon, a needle's tunnel one voxel wide or more, is
+// not seen through), and no wall lies within 3 voxels ahead to explain the stop (the image stays
+// below half way from the seed's level to the tissue's: a balloon wrapped round a needle stops a
+// layer or two short of it, and those layers are its tunnel's walls).
+bool BalloonEvolution::in_fold(const FrontGrid::Reader& reader, const Vec3f& p,
+                               const Vec3f& n) const {
   const float vox_mm = smoothed_.spacing_mm().minCoeff();
   for (const float k : {1.0f, 1.5f, 2.0f}) {
     Vec3i ijk;
     if (!marks_.voxel(p + (k * vox_mm) * n, ijk) || !reader.marked(ijk)) return false;
   }
+  const float wall = 0.5f * (stats_.seed_level + stats_.tissue_level);
+  for (const float k : {1.0f, 1.5f, 2.0f, 2.5f, 3.0f})
+    if (!(sampler_.value(p + (k * vox_mm) * n) < wall)) return false;
   return true;
 }
 

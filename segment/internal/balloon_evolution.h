@@ -89,7 +89,7 @@ class BalloonEvolution {
   bool swept_nothing_new();
   bool few_moving(int now_moving) const;
   void open_folds();
-  bool swept_all_the_way(const FrontGrid::Reader& reader, const Vec3f& p, const Vec3f& n) const;
+  bool in_fold(const FrontGrid::Reader& reader, const Vec3f& p, const Vec3f& n) const;
   bool needs_remesh() const;
   void remesh();
   void keep_before_leak(int iteration, int now_moving);
