@@ -99,8 +99,8 @@ struct BalloonOptions {
   int max_leak_seals = 6;
   int stall_window_iterations = 20;  // stop when no moving vertex got further than
   float stall_motion_vox = 0.02f;    // stall_motion_vox per iteration over this window
-  // End when A_t has not grown over this many stall windows, the movers in folds type 1 and the
-  // rest as at the iteration limit (BalloonStats::swept_out); 0: run to the limit.
+  // End when A_t has not grown over this many stall windows, the movers as at the iteration
+  // limit, or stalled when few (BalloonStats::swept_out); 0: run to the limit.
   int swept_out_windows = 3;
   // A vertex the cost stopped with the balloon's swept inside ahead of it is a fold, type 1
   // (docs/stopping.md item 16); false keeps it as a wall.
