@@ -55,8 +55,8 @@ void for_each_sample(const Volume& input, int step, const std::vector<std::uint8
 // background) and the bright class (tissue) whatever their proportions. Subsampling every second
 // voxel per axis keeps this at a few ms for 256³ and changes the threshold by less than a bin.
 // A probe's no-data region is left out: its zeros would be the dark class, and the split would
-// fall between no data and the image (64³ echo phantoms at contrast 0.3: 64-68, under the
-// targets' own level, so 9 of 10 phantom seeds were refused as "bright tissue").
+// fall between no data and the image, under a low-contrast target's own level
+// (docs/stopping.md item 3).
 float otsu_threshold(const Volume& input, const std::vector<std::uint8_t>& no_data) {
   const int step = input.voxel_count() > 200000 ? 2 : 1;
   float lo = std::numeric_limits<float>::max(), hi = std::numeric_limits<float>::lowest();
@@ -132,8 +132,8 @@ std::optional<std::string> check_seed(const Volume& input, const Vec3f& seed_mm,
   float local = local_mean(input, centre, none), threshold = otsu_threshold(input, none);
   if (local <= threshold && local != 0.0f) return std::nullopt;
   // A refusal, or a seed among zeros, is judged again without a probe's no-data region (its zeros
-  // would be Otsu's dark class); the flood for it is left to these cases, as it costs ~2.5 ms a
-  // volume at 128³, on every volume the daemon checks.
+  // would be Otsu's dark class); the flood for it is left to these cases, as the daemon checks
+  // the seed of every volume.
   const std::vector<std::uint8_t> no_data = internal::no_data_mask(input);
   if (!no_data.empty()) {
     local = local_mean(input, centre, no_data);
