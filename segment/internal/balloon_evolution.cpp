@@ -356,8 +356,8 @@ bool BalloonEvolution::swept_nothing_new() {
 // A vertex the boundary cost stopped, with the other side of the balloon ahead of it and no wall,
 // is a fold of the balloon: it is type 1, as if it had taken the step into what was
 // swept (the opening removes it). Kept as a wall, a fold's sheets are extra layers of the surface
-// in the samples, and the indicator counts each layer (in a shadowed cavity: χ ran 0.3-4 at the
-// samples, the iso value cut a wall off).
+// in the samples, and the indicator counts each layer: its iso value, their mean, then cuts off
+// the parts of the target that have one layer (docs/stopping.md item 16).
 void BalloonEvolution::open_folds() {
   const std::vector<Vec3f> normal = vertex_normals(bm_);
   const FrontGrid::Reader reader(marks_.grid());
