@@ -102,13 +102,15 @@ void BalloonEvolution::run(std::stop_token stop) {
       break;
     }
     if (it % options_.stall_window_iterations == 0) {
-      if (swept_nothing_new()) {
-        // As the stall test below would call it (a few movers in a crease), or as the limit would.
-        (few_moving(now_moving) ? stats_.stalled : stats_.swept_out) = true;
+      // The stall test decides first; the window still counts towards the swept-out end.
+      const bool stalled = stall_test(now_moving), swept_out = swept_nothing_new();
+      if (stalled) {
+        stats_.stalled = true;
         break;
       }
-      if (stall_test(now_moving)) {
-        stats_.stalled = true;
+      if (swept_out) {
+        // As the stall test would call it later (a few movers in a crease), or as the limit would.
+        (few_moving(now_moving) ? stats_.stalled : stats_.swept_out) = true;
         break;
       }
     }
