@@ -50,25 +50,37 @@ void print_header() {
   std::printf("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n");
 }
 
-// One case: the pipeline `repeat` times on the phantom, the last result measured.
-json measure(const sim::PhantomSpec& spec, const daemon::RunConfig& config, int repeat) {
+// One case: the pipeline `repeat` times on the phantom, from its seed moved by `seed_offset`
+// times the radius of the ball of the target's volume; the last result measured.
+json measure(const sim::PhantomSpec& spec, const daemon::RunConfig& config, int repeat,
+             const volume::Vec3f& seed_offset) {
   const sim::Phantom phantom = sim::make_phantom(spec);
-  daemon::PipelineResult result;
-  std::vector<double> totals;
-  for (int r = 0; r < repeat; ++r) {
-    result = daemon::run_pipeline(phantom.image, phantom.seed_mm, config.pipeline);
-    totals.push_back(result.timings.total_ms);
-  }
-  json row = {{"phantom", spec.phantom},         {"realism", sim::to_string(spec.realism)},
-              {"size", spec.size_vox},           {"seed", spec.seed},
-              {"speckle", spec.speckle},         {"contrast", spec.contrast},
-              {"genus_expected", phantom.genus}, {"ok", result.ok},
-              {"error", result.error},           {"total_ms", median(totals)}};
-  double dice = 0, balloon_dice = 0, volume_ratio = 0, volume_error = 0;
-  daemon::internal::SurfaceDistances distances;
   std::size_t truth_voxels = 0;
   for (std::uint8_t v : phantom.truth.u8()) truth_voxels += v != 0;
   const volume::Vec3f h = phantom.truth.spacing_mm();
+  const double radius_mm =
+      std::cbrt(3.0 * static_cast<double>(truth_voxels) * h.prod() / (4.0 * M_PI));
+  const volume::Vec3f seed_mm = phantom.seed_mm + static_cast<float>(radius_mm) * seed_offset;
+  daemon::PipelineResult result;
+  std::vector<double> totals;
+  for (int r = 0; r < repeat; ++r) {
+    result = daemon::run_pipeline(phantom.image, seed_mm, config.pipeline);
+    totals.push_back(result.timings.total_ms);
+  }
+  json row = {{"phantom", spec.phantom},
+              {"realism", sim::to_string(spec.realism)},
+              {"size", spec.size_vox},
+              {"seed", spec.seed},
+              {"time_s", spec.time_s},
+              {"seed_offset", {seed_offset.x(), seed_offset.y(), seed_offset.z()}},
+              {"speckle", spec.speckle},
+              {"contrast", spec.contrast},
+              {"genus_expected", phantom.genus},
+              {"ok", result.ok},
+              {"error", result.error},
+              {"total_ms", median(totals)}};
+  double dice = 0, balloon_dice = 0, volume_ratio = 0, volume_error = 0;
+  daemon::internal::SurfaceDistances distances;
   const double truth_ml = static_cast<double>(truth_voxels) * h.x() * h.y() * h.z() / 1000.0;
   if (result.ok && result.labels) {
     dice = daemon::internal::dice(*result.labels, phantom.truth);
@@ -206,6 +218,11 @@ int main(int argc, char** argv) {
       app.add_option("--speckle", spec.speckle, "Speckle strength (0 = none; echo default 1)");
   app.add_option("--contrast", spec.contrast, "Target contrast (0..1)");
   app.add_option("--seed", spec.seed, "Random seed");
+  app.add_option("--time", spec.time_s, "Breathing phase (s)");
+  std::vector<float> offset{0.0f, 0.0f, 0.0f};
+  app.add_option("--seed-offset", offset,
+                 "X Y Z: the seed moved by this much of the target's equivalent radius")
+      ->expected(3);
   app.add_option("--realism", realism, "Image model: simple or echo (sim::with_echo_realism)")
       ->check(CLI::IsMember({"simple", "echo"}));
   app.add_option("--repeat", repeat, "Runs per case; the median time is reported")
@@ -243,7 +260,7 @@ int main(int argc, char** argv) {
       spec = sim::with_echo_realism(spec);
       if (speckle->count() > 0) spec.speckle = given;
     }
-    const json row = measure(spec, config, repeat);
+    const json row = measure(spec, config, repeat, volume::Vec3f(offset[0], offset[1], offset[2]));
     if (format == "json")
       std::printf("%s\n", row.dump().c_str());
     else
