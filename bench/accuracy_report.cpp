@@ -55,12 +55,8 @@ void print_header() {
 json measure(const sim::PhantomSpec& spec, const daemon::RunConfig& config, int repeat,
              const volume::Vec3f& seed_offset) {
   const sim::Phantom phantom = sim::make_phantom(spec);
-  std::size_t truth_voxels = 0;
-  for (std::uint8_t v : phantom.truth.u8()) truth_voxels += v != 0;
-  const volume::Vec3f h = phantom.truth.spacing_mm();
-  const double radius_mm =
-      std::cbrt(3.0 * static_cast<double>(truth_voxels) * h.prod() / (4.0 * M_PI));
-  const volume::Vec3f seed_mm = phantom.seed_mm + static_cast<float>(radius_mm) * seed_offset;
+  const float radius_mm = static_cast<float>(daemon::internal::equivalent_radius_mm(phantom.truth));
+  const volume::Vec3f seed_mm = phantom.seed_mm + radius_mm * seed_offset;
   daemon::PipelineResult result;
   std::vector<double> totals;
   for (int r = 0; r < repeat; ++r) {
@@ -81,6 +77,9 @@ json measure(const sim::PhantomSpec& spec, const daemon::RunConfig& config, int 
               {"total_ms", median(totals)}};
   double dice = 0, balloon_dice = 0, volume_ratio = 0, volume_error = 0;
   daemon::internal::SurfaceDistances distances;
+  std::size_t truth_voxels = 0;
+  for (std::uint8_t v : phantom.truth.u8()) truth_voxels += v != 0;
+  const volume::Vec3f h = phantom.truth.spacing_mm();
   const double truth_ml = static_cast<double>(truth_voxels) * h.x() * h.y() * h.z() / 1000.0;
   if (result.ok && result.labels) {
     dice = daemon::internal::dice(*result.labels, phantom.truth);

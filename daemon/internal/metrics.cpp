@@ -285,6 +285,14 @@ double dice(const Volume& a, const Volume& b) {
   return 2.0 * static_cast<double>(both) / static_cast<double>(na + nb);
 }
 
+double equivalent_radius_mm(const Volume& labels) {
+  std::size_t inside = 0;
+  for (const std::uint8_t v : label_data(labels)) inside += v != 0;
+  const double volume_mm3 =
+      static_cast<double>(inside) * static_cast<double>(labels.spacing_mm().prod());
+  return std::cbrt(3.0 * volume_mm3 / (4.0 * M_PI));
+}
+
 SurfaceDistances surface_distances(const Volume& a, const Volume& b) {
   require_same_grid(a, b);
   const auto ba = boundary_of(a), bb = boundary_of(b);

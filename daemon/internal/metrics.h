@@ -38,6 +38,10 @@ std::optional<DeepestPoint> deepest_inside(const volume::Volume& field, float is
 /// @throws std::invalid_argument if the grids differ.
 double dice(const volume::Volume& a, const volume::Volume& b);
 
+/// Radius (mm) of the ball with the volume of the inside of `labels` (a target's size, for seeds
+/// placed a share of it from its centre).
+double equivalent_radius_mm(const volume::Volume& labels);
+
 /// Boundary distances between two label volumes, in voxels (index units, spacing ignored so the
 /// numbers read as "voxels" on any grid). The boundary of a label set is its inside voxels with a
 /// 6-neighbour outside (or on the volume border). Distances from every boundary voxel of A to the

@@ -52,19 +52,12 @@ TEST(TrackedPipeline, BreathingEchoCystNeedleKeepsGenusOneOnEveryVolume) {
   EXPECT_EQ(wrong_genus_volumes(true), 0);
 }
 
-// The radius of the ball with the volume of the truth's inside.
-float equivalent_radius_mm(const volume::Volume& truth) {
-  std::size_t inside = 0;
-  for (std::uint8_t v : truth.u8()) inside += v != 0;
-  const Vec3f h = truth.spacing_mm();
-  return std::cbrt(3.0f * static_cast<float>(inside) * h.x() * h.y() * h.z() /
-                   (4.0f * static_cast<float>(M_PI)));
-}
-
 // Seeds anywhere in the inner half of the target give the same surface.
 TEST(TrackedPipeline, SeedsInTheInnerHalfGiveTheSameResult) {
   const sim::Phantom phantom = sim::make_phantom({.phantom = "sphere", .size_vox = 64});
-  const float r_mm = 0.45f * equivalent_radius_mm(phantom.truth);  // inside the inner half
+  const float r_mm =
+      0.45f *
+      static_cast<float>(internal::equivalent_radius_mm(phantom.truth));  // inside the inner half
   const std::array<Vec3f, 5> offsets = {Vec3f::Zero(), Vec3f(r_mm, 0, 0), Vec3f(0, -r_mm, 0),
                                         Vec3f(0, 0, r_mm),
                                         Vec3f(-r_mm, r_mm, -r_mm) / std::sqrt(3.0f)};
@@ -88,7 +81,7 @@ TEST(TrackedPipeline, EchoSeedsInTheInnerHalfAreRightOrFlagged) {
   const sim::Phantom p = sim::make_phantom(sim::with_echo_realism(
       {.phantom = "cyst-needle", .size_vox = 96, .seed = 1, .time_s = 1.6f}));
   ASSERT_EQ(p.genus, 1);
-  const float r_mm = 0.45f * equivalent_radius_mm(p.truth);
+  const float r_mm = 0.45f * static_cast<float>(internal::equivalent_radius_mm(p.truth));
   const std::array<Vec3f, 7> offsets = {Vec3f::Zero(),     Vec3f(r_mm, 0, 0),  Vec3f(-r_mm, 0, 0),
                                         Vec3f(0, r_mm, 0), Vec3f(0, -r_mm, 0), Vec3f(0, 0, r_mm),
                                         Vec3f(0, 0, -r_mm)};
