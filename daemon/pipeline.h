@@ -78,6 +78,10 @@ struct PipelineConfig {
   /// publishes the chain's last volume first: docs/tuning.md). 10: at 10 volumes/s chains of 20
   /// drifted out in the needle's shadow until the open patch refused them. 0 = off.
   int track_max_chain = 10;
+  /// Acoustic shadows lifted before the balloon (docs/stopping.md "The needle's shadow"): in a
+  /// probe's sector, what lies beyond a needle along the beam is multiplied back to the level
+  /// beside it (daemon/internal/shadow_gain.h). false: the image as it came.
+  bool shadow_gain = true;
   bool want_labels = true;      // label volume on the input grid (inside = 1); seed tracking
                                 // does not need it (deepest_interior_mm comes from χ)
   bool want_indicator = false;  // the indicator function χ as a Float32 volume (for .vdb output)
@@ -144,6 +148,10 @@ struct PipelineResult {
   /// The speckle's grain measured around the seed and the pre-filter's sigma it chose (mm).
   float speckle_grain_mm = 0.0f;
   float smooth_sigma_mm = 0.0f;
+  /// The acoustic shadow lifted (PipelineConfig::shadow_gain): its level over the level beside
+  /// it (1: none found) and how many voxels were lifted.
+  float shadow_factor = 1.0f;
+  std::size_t shadow_voxels = 0;
   /// The result comes from the coarse retry (PipelineConfig::coarse_retry_grains).
   bool coarse_retry = false;
 
@@ -218,6 +226,7 @@ struct PipelineBuffers {
     Vec3i dims = Vec3i::Zero();
     std::vector<std::uint8_t> mask;  // per voxel (Volume::linear_index), 1: no data; empty: none
     std::vector<std::pair<std::uint32_t, std::uint32_t>> fill;  // (voxel, voxel it copies)
+    std::optional<Vec3f> apex_mm;  // the probe's apex, when the region's walls meet in one point
   } no_data;
 };
 

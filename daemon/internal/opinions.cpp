@@ -138,7 +138,7 @@ std::string segment_opinions(const volume::Volume& input, const Vec3f& seed_mm,
 bool stalled_on_texture(const PipelineResult& r) {
   for (const std::string& why : r.quality_reasons)
     if (why == "stalled near the seed" || why == "implausibly small" ||
-        why == "surface not on the target's wall")
+        why == "surface not on the target's wall" || why == "implausible genus")
       return true;
   return false;
 }

@@ -28,7 +28,8 @@ std::string segment_opinions(const volume::Volume& input, const Vec3f& seed_mm,
                              const WarmStart* warm, const std::stop_token& stop, const Judge& judge,
                              PipelineResult& result, bool& judged, bool known_target = false);
 
-/// The verdict's reasons for a balloon that stopped on the texture around the seed.
+/// The verdict's reasons for a balloon that stopped on the texture around the seed, or wrapped
+/// round it (more handles than a seeded target has: columns of speckle inside the cavity).
 bool stalled_on_texture(const PipelineResult& r);
 
 /// The coarse retry (docs/stopping.md departure 12): at low contrast both stop rules stop on the

@@ -13,6 +13,7 @@
 #include "daemon/internal/coarse_start.h"
 #include "daemon/internal/metrics.h"
 #include "daemon/internal/opinions.h"
+#include "daemon/internal/shadow_gain.h"
 #include "daemon/internal/stages.h"
 #include "daemon/internal/target_image.h"
 #include "daemon/internal/track.h"
@@ -108,6 +109,11 @@ const std::vector<std::uint8_t>& smooth_stage(const volume::Volume& input, const
   if (dark) internal::update_no_data(input, buffers.no_data);
   const NoDataRegion& no_data = dark ? buffers.no_data : kNone;
   const bool rewritten = internal::working_image(input, result.target, no_data, buffers.working);
+  if (rewritten && config.shadow_gain && no_data.apex_mm) {
+    const ShadowGain gain = compensate_shadows(buffers.working, no_data.mask, *no_data.apex_mm);
+    result.shadow_factor = gain.shadow_factor;
+    result.shadow_voxels = gain.voxels;
+  }
   volume::smooth_gaussian(rewritten ? buffers.working : input, sigma_mm, buffers.smoothed);
   result.timings.smooth_ms = ms_since(t);
   return no_data.mask;

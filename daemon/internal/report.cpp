@@ -46,7 +46,9 @@ nlohmann::json report_json(const PipelineResult& result, const std::string& inpu
     report["coarse_start"] = {{"fallback_reason", c.fallback_reason}};
   report["smoothing"] = {{"sigma_mm", result.smooth_sigma_mm},
                          {"speckle_grain_mm", result.speckle_grain_mm},
-                         {"coarse_retry", result.coarse_retry}};
+                         {"coarse_retry", result.coarse_retry},
+                         {"shadow_factor", result.shadow_factor},
+                         {"shadow_voxels", result.shadow_voxels}};
   const StageTimings& t = result.timings;
   nlohmann::json& timings = report["timings_ms"];
   for (const auto& [stage, ms] : t.stages()) timings[stage] = ms;

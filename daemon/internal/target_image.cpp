@@ -5,6 +5,8 @@
 #include <array>
 #include <cmath>
 
+#include "daemon/internal/shadow_gain.h"
+
 namespace sonomesh::daemon::internal {
 namespace {
 
@@ -249,6 +251,7 @@ bool update_no_data(const Volume& input, NoDataRegion& region) {
   region.dims = input.dims();
   region.mask = no_data_mask(input);
   region.fill = region.mask.empty() ? FillPlan{} : fill_plan(input.dims(), region.mask);
+  region.apex_mm = sector_apex_mm(input, region.mask);
   return false;
 }
 

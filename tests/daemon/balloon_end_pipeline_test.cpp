@@ -17,10 +17,13 @@ sim::Phantom breathing_cyst_needle(int size_vox, unsigned seed, float time_s) {
   return sim::make_phantom(sim::with_echo_realism(spec));
 }
 
-// Ψ_cost alone, as the second opinion would replace a suspect result.
+// Ψ_cost alone, as the second opinion would replace a suspect result. The needle's shadow stays
+// as the probe gave it: lifted (docs/stopping.md item 17), it no longer folds these balloons, and
+// a shadow the pipeline does not find (no sector, a caster too faint) still can.
 PipelineResult first_opinion(const sim::Phantom& phantom, const segment::BalloonOptions& balloon) {
   PipelineConfig config;
   config.second_opinion_level_stop = 0.0f;
+  config.shadow_gain = false;
   config.balloon = balloon;
   return run_pipeline(phantom.image, phantom.seed_mm, config);
 }

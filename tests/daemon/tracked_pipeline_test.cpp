@@ -74,9 +74,10 @@ TEST(TrackedPipeline, SeedsInTheInnerHalfGiveTheSameResult) {
       EXPECT_GE(internal::dice(labels[a], labels[b]), 0.98) << "seeds " << a << " and " << b;
 }
 
-// In the echo realism speckle and the needle's shadow make some seeds of the inner half fail (a
-// leak along the shadow, sealed): each result is right or flagged, and most seeds give the same
-// ok surface.
+// In the echo realism speckle and the needle's shadow can make a seed of the inner half fail:
+// each result is right or flagged, and the ok ones are the same surface. (Measured 2026-12-05:
+// 7 of 7 ok; before the shadow was lifted, docs/stopping.md item 17, 4 of 7, three sealed leaks
+// along the shadow.)
 TEST(TrackedPipeline, EchoSeedsInTheInnerHalfAreRightOrFlagged) {
   const sim::Phantom p = sim::make_phantom(sim::with_echo_realism(
       {.phantom = "cyst-needle", .size_vox = 96, .seed = 1, .time_s = 1.6f}));
@@ -94,7 +95,7 @@ TEST(TrackedPipeline, EchoSeedsInTheInnerHalfAreRightOrFlagged) {
     EXPECT_GE(internal::dice(*r.labels, p.truth), 0.93) << offset.transpose();
     ok_labels.push_back(*r.labels);
   }
-  EXPECT_GE(ok_labels.size(), 4u);  // (three leak along the shadow and are sealed)
+  EXPECT_GE(ok_labels.size(), 6u);
   for (std::size_t a = 0; a < ok_labels.size(); ++a)
     for (std::size_t b = a + 1; b < ok_labels.size(); ++b)
       EXPECT_GE(internal::dice(ok_labels[a], ok_labels[b]), 0.95)

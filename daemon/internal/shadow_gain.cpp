@@ -1,0 +1,488 @@
+// Acoustic shadows lifted before the balloon sees the image (shadow_gain.h).
+#include "daemon/internal/shadow_gain.h"
+
+#include <Eigen/Dense>
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <limits>
+
+namespace sonomesh::daemon::internal {
+namespace {
+
+using volume::Vec3f;
+using volume::Vec3i;
+using volume::Volume;
+
+// A caster's 3×3×3 mean lies over this many times the sector's median: a needle reaches 2-3
+// times the tissue's echo, a tissue wall's specular echo under 1.8 times, speckle averaged over a
+// grain well under that.
+constexpr float kCasterLevel = 1.8f;
+// The beam's mean beyond a caster against the mean beside it: below this it is a shadow (a
+// caster with tissue beyond it like beside it reads 1).
+constexpr float kShadowRatio = 0.6f;
+// A cluster with fewer casters than this is speckle that passed the tests by chance.
+constexpr std::size_t kMinCasters = 20, kMostTested = 256;
+// ... and a cluster shorter than this along every axis is a grain or a blob, not a needle.
+constexpr int kMinLengthVox = 12;
+// Beyond: voxels 3-20 along the beam, past the reflector itself; beside: 6 voxels across the beam,
+// clear of a needle's shadow (its radius is 1.2-2.5 voxels in our phantoms).
+constexpr int kBeyondFirstVox = 3, kBeyondLastVox = 20;
+constexpr float kBesideVox = 6.0f;
+// The apex: the side walls' normals lie within this sine of square to the ray from it (median).
+constexpr float kApexResidualSin = 0.15f;
+constexpr int kMinWallPoints = 100;
+constexpr float kFlatWallSum = 20.0f;  // wall_normal's least sum
+
+struct WallPoint {
+  Vec3f p_mm, n;  // a data voxel beside the no-data region; the outward normal
+};
+
+// The outward normal at voxel (i, j, k): the sum of the offsets of the no-data voxels within two,
+// within a ball (a cube's would lean towards its axes) in index space, where it is square to a
+// flat wall; over the spacing, square to it in mm. Zero where no flat wall is: beside one the sum
+// is 39 voxels along its normal, beside a speck of data amid the no-data region much less.
+// (i, j, k) lies two or more voxels from the volume's faces.
+Vec3f wall_normal(const Volume& input, const std::vector<std::uint8_t>& no_data, int i, int j,
+                  int k) {
+  Vec3f n = Vec3f::Zero();
+  for (int c = -2; c <= 2; ++c)
+    for (int b = -2; b <= 2; ++b)
+      for (int a = -2; a <= 2; ++a)
+        if (a * a + b * b + c * c <= 6 && no_data[input.linear_index(i + a, j + b, k + c)])
+          n += Vec3f(a, b, c);
+  if (n.norm() < kFlatWallSum) return Vec3f::Zero();
+  return n.cwiseQuotient(input.spacing_mm()).normalized();
+}
+
+// A hash of the voxel picks one in four (spatial hashing's primes).
+bool one_in_four(int i, int j, int k) {
+  const auto u = [](int x) { return static_cast<std::uint32_t>(x); };
+  return ((u(i) * 73856093u) ^ (u(j) * 19349663u) ^ (u(k) * 83492791u)) % 4u == 0;
+}
+
+// A quarter of the data voxels with a no-data face neighbour, two or more from the volume's faces
+// (where the normal's window fits), with their normals. The quarter is picked by a hash of the
+// voxel, not by counting: every fourth of a row's two walls would be one wall only.
+std::vector<WallPoint> wall_points(const Volume& input, const std::vector<std::uint8_t>& no_data) {
+  const Vec3i d = input.dims();
+  const std::size_t nx = static_cast<std::size_t>(d.x()), nxy = nx * d.y();
+  std::vector<WallPoint> points;
+  for (int k = 2; k + 2 < d.z(); ++k)
+    for (int j = 2; j + 2 < d.y(); ++j)
+      for (int i = 2; i + 2 < d.x(); ++i) {
+        const std::size_t at = k * nxy + j * nx + static_cast<std::size_t>(i);
+        if (no_data[at] || !(no_data[at - 1] | no_data[at + 1] | no_data[at - nx] |
+                             no_data[at + nx] | no_data[at - nxy] | no_data[at + nxy]))
+          continue;
+        if (!one_in_four(i, j, k)) continue;
+        const Vec3f n = wall_normal(input, no_data, i, j, k);
+        if (n != Vec3f::Zero()) points.push_back({input.index_to_mm(Vec3f(i, j, k)), n});
+      }
+  return points;
+}
+
+// The beam's rough direction: along the axis whose data grows most from one end to the other
+// (the sector widens away from the apex), towards the wider end (every other voxel counted).
+Vec3f rough_beam_axis(const Volume& input, const std::vector<std::uint8_t>& no_data) {
+  const Vec3i d = input.dims();
+  std::array<std::array<double, 2>, 3> ends{};  // per axis: data in its first and last third
+  for (int k = 0; k < d.z(); k += 2)
+    for (int j = 0; j < d.y(); j += 2)
+      for (int i = 0; i < d.x(); i += 2) {
+        if (no_data[input.linear_index(i, j, k)]) continue;
+        const std::array<int, 3> x{i, j, k};
+        for (int a = 0; a < 3; ++a) {
+          if (3 * x[a] < d[a]) ends[a][0] += 1.0;
+          if (3 * x[a] >= 2 * d[a]) ends[a][1] += 1.0;
+        }
+      }
+  int best = 2;
+  double best_ratio = 0.0;
+  for (int a = 0; a < 3; ++a) {
+    const double lo = std::min(ends[a][0], ends[a][1]) + 1.0;
+    const double ratio = std::max(ends[a][0], ends[a][1]) / lo;
+    if (ratio > best_ratio) best_ratio = ratio, best = a;
+  }
+  Vec3f axis = Vec3f::Zero();
+  axis[best] = ends[best][1] >= ends[best][0] ? 1.0f : -1.0f;
+  return axis;
+}
+
+// The point nearest to the planes of the points `side` picks (least squares); nullopt when they
+// do not fix a point (fewer than three independent normals).
+template <typename Pick>
+std::optional<Vec3f> planes_meet(const std::vector<WallPoint>& points, Pick side) {
+  Eigen::Matrix3d A = Eigen::Matrix3d::Zero();
+  Eigen::Vector3d b = Eigen::Vector3d::Zero();
+  int used = 0;
+  for (const WallPoint& w : points) {
+    if (!side(w)) continue;
+    const Eigen::Vector3d n = w.n.cast<double>();
+    A += n * n.transpose();
+    b += n * n.dot(w.p_mm.cast<double>());
+    ++used;
+  }
+  if (used < kMinWallPoints) return std::nullopt;
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eigen(A);
+  if (eigen.eigenvalues()(0) < 0.02 * used) return std::nullopt;
+  return A.ldlt().solve(b).cast<float>();
+}
+
+// The q-quantile of v (0 when empty).
+float quantile(std::vector<float> v, float q) {
+  if (v.empty()) return 0.0f;
+  const auto mid = v.begin() + static_cast<std::ptrdiff_t>(q * static_cast<float>(v.size() - 1));
+  std::nth_element(v.begin(), mid, v.end());
+  return *mid;
+}
+
+}  // namespace
+
+// Side walls contain the beams, so their normals are square to the ray from the apex; the far
+// arc's normals lie along it. The rough axis picks the first side walls; then each round keeps
+// the walls whose normal is within 20° of square to the ray from the last apex.
+std::optional<Vec3f> sector_apex_mm(const Volume& input, const std::vector<std::uint8_t>& no_data) {
+  if (no_data.empty()) return std::nullopt;
+  const std::vector<WallPoint> points = wall_points(input, no_data);
+  const Vec3f axis = rough_beam_axis(input, no_data);
+  std::optional<Vec3f> apex =
+      planes_meet(points, [&](const WallPoint& w) { return std::abs(w.n.dot(axis)) < 0.5f; });
+  for (int round = 0; round < 4 && apex; ++round) {
+    const Vec3f a = *apex;
+    apex = planes_meet(points, [&](const WallPoint& w) {
+      const Vec3f ray = w.p_mm - a;
+      return std::abs(w.n.dot(ray)) < 0.35f * ray.norm();
+    });
+  }
+  if (!apex) return std::nullopt;
+  std::vector<float> residuals;
+  for (const WallPoint& w : points) {
+    const Vec3f ray = w.p_mm - *apex;
+    const float off = std::abs(w.n.dot(ray));
+    if (off < 0.35f * ray.norm()) residuals.push_back(off / ray.norm());
+  }
+  if (quantile(residuals, 0.5f) > kApexResidualSin) return std::nullopt;
+  return apex;
+}
+
+namespace {
+
+// The sector's median and 90th percentile (every 29th data voxel).
+struct SectorLevels {
+  float median = 0.0f, p90 = 0.0f;
+};
+
+SectorLevels sector_levels(const Volume& image, const std::vector<std::uint8_t>& no_data) {
+  std::vector<float> sample;
+  const std::vector<float>& v = image.f32();
+  for (std::size_t at = 0; at < v.size(); at += 29)
+    if (!no_data[at]) sample.push_back(v[at]);
+  return {quantile(sample, 0.5f), quantile(sample, 0.9f)};
+}
+
+// 1 for each voxel whose 3×3×3 mean lies over `level` (0 on the volume's faces).
+std::vector<std::uint8_t> bright_mask(const Volume& image, float level) {
+  const Vec3i d = image.dims();
+  const std::vector<float>& v = image.f32();
+  const std::ptrdiff_t nx = d.x(), nxy = nx * d.y();
+  std::vector<std::uint8_t> mask(v.size(), 0);
+  for (int k = 1; k + 1 < d.z(); ++k)
+    for (int j = 1; j + 1 < d.y(); ++j)
+      for (int i = 1; i + 1 < d.x(); ++i) {
+        const std::ptrdiff_t at = k * nxy + j * nx + i;
+        if (v[at] <= level) continue;
+        float sum = 0.0f;
+        for (std::ptrdiff_t c = -nxy; c <= nxy; c += nxy)
+          for (std::ptrdiff_t b = -nx; b <= nx; b += nx)
+            sum += v[at + c + b - 1] + v[at + c + b] + v[at + c + b + 1];
+        mask[at] = sum > 27.0f * level ? 1 : 0;
+      }
+  return mask;
+}
+
+// The 26-connected cluster of mask voxels (value 1) holding `start`, each marked 2 as it is taken.
+void take_cluster(const Vec3i& d, std::size_t start, std::vector<std::uint8_t>& mask,
+                  std::vector<std::size_t>& cluster) {
+  const std::ptrdiff_t nx = d.x(), nxy = nx * d.y();
+  cluster.assign(1, start);
+  mask[start] = 2;
+  for (std::size_t next = 0; next < cluster.size(); ++next) {
+    const auto at = static_cast<std::ptrdiff_t>(cluster[next]);
+    for (std::ptrdiff_t c = -nxy; c <= nxy; c += nxy)
+      for (std::ptrdiff_t b = -nx; b <= nx; b += nx)
+        for (std::ptrdiff_t a = -1; a <= 1; ++a) {
+          const std::ptrdiff_t n = at + c + b + a;  // in range: the faces hold no mask voxel
+          if (mask[static_cast<std::size_t>(n)] != 1) continue;
+          mask[static_cast<std::size_t>(n)] = 2;
+          cluster.push_back(static_cast<std::size_t>(n));
+        }
+  }
+}
+
+// The longest side of the index box holding the voxels.
+int longest_side_vox(const Vec3i& d, const std::vector<std::size_t>& voxels) {
+  Vec3i lo = d, hi = Vec3i::Zero();
+  for (const std::size_t v : voxels) {
+    const Vec3i x(static_cast<int>(v % d.x()), static_cast<int>(v / d.x() % d.y()),
+                  static_cast<int>(v / (static_cast<std::size_t>(d.x()) * d.y())));
+    lo = lo.cwiseMin(x), hi = hi.cwiseMax(x);
+  }
+  return (hi - lo).maxCoeff() + 1;
+}
+
+// The beams of a sector: rays from the apex, read at whole voxels (nearest), within the data.
+struct Beams {
+  const Volume& image;
+  const std::vector<std::uint8_t>& no_data;
+  Vec3f apex_mm;
+  float vox_mm;
+  float tissue_top;  // the sector's 90th percentile: a mean beside a shadow is rarely over it
+
+  Vec3f at_mm(std::size_t voxel) const {
+    const Vec3i d = image.dims();
+    const auto i = static_cast<int>(voxel % d.x()), j = static_cast<int>(voxel / d.x() % d.y()),
+               k = static_cast<int>(voxel / (static_cast<std::size_t>(d.x()) * d.y()));
+    return image.index_to_mm(Vec3f(i, j, k));
+  }
+
+  // The voxel nearest to q in the data, or -1 (outside the volume or the sector).
+  std::ptrdiff_t voxel(const Vec3f& q) const {
+    const Vec3f x = image.mm_to_index(q);
+    const Vec3i v(static_cast<int>(std::lround(x.x())), static_cast<int>(std::lround(x.y())),
+                  static_cast<int>(std::lround(x.z())));
+    if (!image.contains_index(v)) return -1;
+    const std::size_t at = image.linear_index(v.x(), v.y(), v.z());
+    return no_data[at] ? -1 : static_cast<std::ptrdiff_t>(at);
+  }
+
+  // Mean along the beam b from q, kBeyondFirstVox..kBeyondLastVox voxels on; -1 where that
+  // leaves the data (the sector's end is no shadow).
+  float mean_beyond(const Vec3f& q, const Vec3f& b) const {
+    float sum = 0.0f;
+    for (int s = kBeyondFirstVox; s <= kBeyondLastVox; ++s) {
+      const std::ptrdiff_t at = voxel(q + (static_cast<float>(s) * vox_mm) * b);
+      if (at < 0) return -1.0f;
+      sum += image.f32()[static_cast<std::size_t>(at)];
+    }
+    return sum / static_cast<float>(kBeyondLastVox - kBeyondFirstVox + 1);
+  }
+
+  // Whether the beam through p leaves the bright structure (the mask) within a voxel and a half:
+  // the far side of a reflector, where its shadow starts.
+  bool far_side(const Vec3f& p, const std::vector<std::uint8_t>& bright) const {
+    const std::ptrdiff_t at = voxel(p + (1.5f * vox_mm) * (p - apex_mm).normalized());
+    return at >= 0 && !bright[static_cast<std::size_t>(at)];
+  }
+
+  // The shadow's level beyond p over the level beside it (1: no shadow): of four directions
+  // across the beam (45° apart), the one whose darker side is brightest beyond. A needle's shadow
+  // has tissue on both sides; the edge of a dark cavity beyond a wall has it on one side only.
+  float shadow_ratio(const Vec3f& p) const {
+    const Vec3f b = (p - apex_mm).normalized();
+    const float beyond = mean_beyond(p, b);
+    if (beyond < 0.0f || beyond >= kShadowRatio * tissue_top) return 1.0f;
+    const Vec3f helper = std::abs(b.x()) < 0.9f ? Vec3f::UnitX() : Vec3f::UnitY();
+    const Vec3f u = b.cross(helper).normalized(), w = b.cross(u);
+    float beside = 0.0f;
+    for (const Vec3f& a : {u, w, Vec3f((u + w).normalized()), Vec3f((u - w).normalized())}) {
+      const Vec3f off = (kBesideVox * vox_mm) * a;
+      const float one = mean_beyond(p + off, b);
+      if (one * kShadowRatio <= beyond) continue;  // no brighter than the shadow, or no data
+      beside = std::max(beside, std::min(one, mean_beyond(p - off, b)));
+    }
+    return beside > 0.0f ? beyond / beside : 1.0f;
+  }
+
+  // The shadow ratios of the cluster's far side, when it casts: at least kMinCasters of them
+  // under kShadowRatio, a third of the far side or more (a bright tissue wall's far side has a
+  // few by chance). Empty otherwise. At most kMostTested voxels of the far side are tested,
+  // evenly spread: a large bright structure costs no more than a needle.
+  std::vector<float> cluster_ratios(const std::vector<std::size_t>& cluster,
+                                    const std::vector<std::uint8_t>& bright) const {
+    std::vector<Vec3f> far;
+    for (const std::size_t v : cluster)
+      if (const Vec3f p = at_mm(v); far_side(p, bright)) far.push_back(p);
+    const std::size_t stride = far.size() / kMostTested + 1;
+    std::vector<float> ratios;
+    std::size_t tested = 0;
+    for (std::size_t f = 0; f < far.size(); f += stride, ++tested)
+      if (const float ratio = shadow_ratio(far[f]); ratio < kShadowRatio) ratios.push_back(ratio);
+    if (ratios.size() < kMinCasters || 3 * ratios.size() < tested) ratios.clear();
+    return ratios;
+  }
+};
+
+// The casters' shadow seen from the apex: over the beams' directions (tangents in a frame whose
+// third axis is the casters' mean beam), the farthest range of a caster on each beam. A voxel lies
+// in the shadow when a caster on its beam is nearer than it by more than a voxel (the reflector's
+// own blurred far edge is not lifted), partly so on the shadow's edge. A map of directions has no
+// gaps where the beams fan out beyond the reflector, as beams traced from its voxels would.
+class ShadowMap {
+ public:
+  ShadowMap(const Beams& beams, const std::vector<std::size_t>& casters) : beams_(beams) {
+    Vec3f mean = Vec3f::Zero();
+    for (const std::size_t c : casters) mean += (beams.at_mm(c) - beams.apex_mm).normalized();
+    e3_ = mean.normalized();
+    e1_ = e3_.cross(std::abs(e3_.x()) < 0.9f ? Vec3f::UnitX() : Vec3f::UnitY()).normalized();
+    e2_ = e3_.cross(e1_);
+    Eigen::Vector2f lo = Eigen::Vector2f::Constant(1e9f), hi = -lo;
+    float nearest = std::numeric_limits<float>::max(), farthest = 0.0f;
+    for (const std::size_t c : casters) {
+      const Vec3f d = beams.at_mm(c) - beams.apex_mm;
+      lo = lo.cwiseMin(tangent(d)), hi = hi.cwiseMax(tangent(d));
+      nearest = std::min(nearest, d.dot(e3_)), farthest = std::max(farthest, d.dot(e3_));
+    }
+    // A caster covers 0.7 voxel around its centre; cells of half a voxel at the farthest depth.
+    const float reach = kFootprintVox * beams.vox_mm / nearest;
+    lo_ = lo.array() - reach;
+    cell_ = 0.5f * beams.vox_mm / farthest;
+    nu_ = std::min(kMostCells, static_cast<int>((hi.x() - lo.x() + 2 * reach) / cell_) + 1);
+    nv_ = std::min(kMostCells, static_cast<int>((hi.y() - lo.y() + 2 * reach) / cell_) + 1);
+    far_mm_.assign(static_cast<std::size_t>(nu_) * nv_, 0.0f);
+    for (const std::size_t c : casters) mark(beams.at_mm(c) - beams.apex_mm);
+    soften_edge();
+  }
+
+  // How deep p lies in the shadow: 1 inside it, 0 outside, between on its edge.
+  float depth_in(const Vec3f& p_mm) const {
+    const Vec3f d = p_mm - beams_.apex_mm;
+    if (d.dot(e3_) <= 0.0f) return 0.0f;
+    const Eigen::Vector2f t = (tangent(d) - lo_) / cell_;
+    const int u = static_cast<int>(t.x()), v = static_cast<int>(t.y());
+    if (t.x() < 0.0f || t.y() < 0.0f || u >= nu_ || v >= nv_) return 0.0f;
+    const std::size_t at = static_cast<std::size_t>(v) * nu_ + u;
+    return d.norm() > edge_far_mm_[at] + beams_.vox_mm ? edge_cover_[at] : 0.0f;
+  }
+
+ private:
+  static constexpr float kFootprintVox = 0.7f;
+  static constexpr int kMostCells = 4096;
+
+  Eigen::Vector2f tangent(const Vec3f& d) const {
+    return Eigen::Vector2f(d.dot(e1_), d.dot(e2_)) / d.dot(e3_);
+  }
+
+  // The cells within the caster's footprint (kFootprintVox at its depth) take its range.
+  void mark(const Vec3f& d) {
+    const float depth = d.dot(e3_), range = d.norm();
+    const float r = kFootprintVox * beams_.vox_mm / depth / cell_;
+    const Eigen::Vector2f t = (tangent(d) - lo_) / cell_;
+    for (int v = std::max(0, static_cast<int>(t.y() - r));
+         v <= std::min(nv_ - 1, static_cast<int>(t.y() + r)); ++v)
+      for (int u = std::max(0, static_cast<int>(t.x() - r));
+           u <= std::min(nu_ - 1, static_cast<int>(t.x() + r)); ++u) {
+        const Eigen::Vector2f c(static_cast<float>(u) + 0.5f, static_cast<float>(v) + 0.5f);
+        if ((c - t).squaredNorm() > r * r) continue;
+        float& far = far_mm_[static_cast<std::size_t>(v) * nu_ + u];
+        far = std::max(far, range);
+      }
+  }
+
+  // The shadow's edge over the cells around each: the share of them marked and the farthest
+  // caster among them. The simulator's and a probe's shadows fade over about a voxel.
+  void soften_edge() {
+    edge_cover_.assign(far_mm_.size(), 0.0f);
+    edge_far_mm_.assign(far_mm_.size(), 0.0f);
+    for (int v = 0; v < nv_; ++v)
+      for (int u = 0; u < nu_; ++u) {
+        int marked = 0;
+        float far = 0.0f;
+        for (int b = std::max(0, v - 1); b <= std::min(nv_ - 1, v + 1); ++b)
+          for (int a = std::max(0, u - 1); a <= std::min(nu_ - 1, u + 1); ++a) {
+            const float f = far_mm_[static_cast<std::size_t>(b) * nu_ + a];
+            marked += f > 0.0f;
+            far = std::max(far, f);
+          }
+        const std::size_t at = static_cast<std::size_t>(v) * nu_ + u;
+        edge_cover_[at] = static_cast<float>(marked) / 9.0f;
+        edge_far_mm_[at] = far;
+      }
+  }
+
+  const Beams& beams_;
+  Vec3f e1_, e2_, e3_;
+  Eigen::Vector2f lo_;
+  float cell_ = 1.0f;
+  int nu_ = 0, nv_ = 0;
+  std::vector<float> far_mm_;  // per cell; 0: no caster
+  std::vector<float> edge_cover_, edge_far_mm_;
+};
+
+// The index box holding every voxel the casters' shadow can reach: the casters, and their beams
+// out to the range of the volume's farthest corner.
+std::pair<Vec3i, Vec3i> shadow_box(const Beams& beams, const std::vector<std::size_t>& casters) {
+  const Volume& image = beams.image;
+  const Vec3i top = image.dims() - Vec3i::Ones();
+  float reach_mm = 0.0f;
+  for (int c = 0; c < 8; ++c) {
+    const Vec3f corner(c & 1 ? top.x() : 0, c & 2 ? top.y() : 0, c & 4 ? top.z() : 0);
+    reach_mm = std::max(reach_mm, (image.index_to_mm(corner) - beams.apex_mm).norm());
+  }
+  Vec3f lo = Vec3f::Constant(std::numeric_limits<float>::max()), hi = -lo;
+  for (const std::size_t c : casters) {
+    const Vec3f p = beams.at_mm(c), d = p - beams.apex_mm;
+    for (const Vec3f& q : {p, Vec3f(beams.apex_mm + d * (reach_mm / d.norm()))}) {
+      const Vec3f x = image.mm_to_index(q);
+      lo = lo.cwiseMin(x), hi = hi.cwiseMax(x);
+    }
+  }
+  const Vec3i from = lo.array().floor().cast<int>().max(0).matrix();
+  const Vec3i to = hi.array().ceil().cast<int>().min(top.array()).matrix();
+  return {from, to};
+}
+
+// Multiplies every data voxel in the casters' shadow by `lift` (less on its edge); counts them
+// into `lifted`.
+void lift_shadow(const Beams& beams, const std::vector<std::size_t>& casters, float lift,
+                 Volume& image, std::size_t& lifted) {
+  const ShadowMap shadow(beams, casters);
+  const auto [from, to] = shadow_box(beams, casters);
+  std::vector<float>& v = image.f32();
+  for (int k = from.z(); k <= to.z(); ++k)
+    for (int j = from.y(); j <= to.y(); ++j)
+      for (int i = from.x(); i <= to.x(); ++i) {
+        const std::size_t at = image.linear_index(i, j, k);
+        if (beams.no_data[at]) continue;
+        const float depth = shadow.depth_in(image.index_to_mm(Vec3f(i, j, k)));
+        if (depth > 0.0f) v[at] *= 1.0f + (lift - 1.0f) * depth, ++lifted;
+      }
+}
+
+}  // namespace
+
+// One factor for the volume, the casters' lower quartile: a single caster's ratio varies with the
+// speckle along its beam, and casters at the needle's edge, their beam half in its shadow, read
+// up to the cut-off; the needle's core reads the shadow's depth.
+ShadowGain compensate_shadows(Volume& image, const std::vector<std::uint8_t>& no_data,
+                              const Vec3f& apex_mm) {
+  ShadowGain gain;
+  if (no_data.empty() || image.type() != volume::VoxelType::Float32) return gain;
+  const SectorLevels levels = sector_levels(image, no_data);
+  // A caster's 3×3×3 mean lies over kCasterLevel times the median and over the 90th percentile
+  // (a sector that is mostly dark cavity or dropout has a low median).
+  const float level = std::max(kCasterLevel * levels.median, levels.p90);
+  if (!(level > 0.0f)) return gain;
+  const Beams beams{image, no_data, apex_mm, image.spacing_mm().minCoeff(), levels.p90};
+  std::vector<std::uint8_t> bright = bright_mask(image, level);
+  std::vector<std::size_t> cluster, casters;
+  std::vector<float> ratios;
+  for (std::size_t at = 0; at < bright.size(); ++at) {
+    if (bright[at] != 1) continue;
+    take_cluster(image.dims(), at, bright, cluster);
+    // A needle is a line of casters; a speckle grain or a clutter blob is short.
+    if (cluster.size() < kMinCasters || longest_side_vox(image.dims(), cluster) < kMinLengthVox)
+      continue;
+    const std::vector<float> found = beams.cluster_ratios(cluster, bright);
+    if (found.empty()) continue;
+    ratios.insert(ratios.end(), found.begin(), found.end());
+    casters.insert(casters.end(), cluster.begin(), cluster.end());
+  }
+  if (casters.empty()) return gain;
+  gain.casters = static_cast<int>(casters.size());
+  gain.shadow_factor = std::max(0.1f, quantile(ratios, 0.25f));
+  lift_shadow(beams, casters, 1.0f / gain.shadow_factor, image, gain.voxels);
+  return gain;
+}
+
+}  // namespace sonomesh::daemon::internal

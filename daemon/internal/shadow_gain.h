@@ -1,0 +1,39 @@
+#pragma once
+/// @file
+/// @brief Acoustic shadows undone before the balloon sees the image (docs/stopping.md "The
+/// needle's shadow"): the probe's apex from its sector, the thin bright reflectors that darken
+/// what lies beyond them along the beam, and a gain that lifts their shadows to the level beside.
+
+#include <cstdint>
+#include <optional>
+#include <vector>
+
+#include "volume/volume.h"
+
+namespace sonomesh::daemon::internal {
+
+/// The probe's apex in mm (the grid frame, Volume::index_to_mm) from the side walls of its
+/// no-data region (`no_data` as no_data_mask; 1 outside the sector): the point every side wall's
+/// plane passes through. nullopt when there is no region or its walls do not meet in one point
+/// (the median wall's normal more than 0.15 in sine from square to its ray: not a sector).
+std::optional<volume::Vec3f> sector_apex_mm(const volume::Volume& input,
+                                            const std::vector<std::uint8_t>& no_data);
+
+/// What compensate_shadows found: the voxels it lifted and by how much (1 = none).
+struct ShadowGain {
+  int casters = 0;             // voxels of the bright clusters that cast a shadow
+  std::size_t voxels = 0;      // voxels lifted
+  float shadow_factor = 1.0f;  // the shadow's level over the level beside it
+};
+
+/// Lifts the acoustic shadows in `image` (Float32; the working image, the no-data region already
+/// filled) by 1 / the shadow's factor. A caster is a voxel whose 3×3×3 mean is over 1.8 times the
+/// sector's median and its 90th percentile (a needle; speckle and tissue walls are not that
+/// bright), on the far side of its bright cluster along the beam, with the beam's
+/// mean 3-20 voxels beyond it under 0.6 of the same mean beside it, 6 voxels across the beam on
+/// both sides; casters come in 26-connected bright clusters of 20 or more. The shadow is every
+/// voxel whose beam from the apex passed a caster more than a voxel before it.
+ShadowGain compensate_shadows(volume::Volume& image, const std::vector<std::uint8_t>& no_data,
+                              const volume::Vec3f& apex_mm);
+
+}  // namespace sonomesh::daemon::internal
