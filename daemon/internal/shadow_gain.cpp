@@ -201,31 +201,36 @@ std::vector<std::uint8_t> bright_mask(const Volume& image, float level) {
   return mask;
 }
 
-// The 26-connected cluster of mask voxels (value 1) holding `start`, each marked 2 as it is taken.
+// The face-connected cluster of mask voxels (value 1) holding `start`, each marked 2 as it is
+// taken. (A needle's bright core is a solid tube: its faces connect it.)
 void take_cluster(const Vec3i& d, std::size_t start, std::vector<std::uint8_t>& mask,
                   std::vector<std::size_t>& cluster) {
-  const std::ptrdiff_t nx = d.x(), nxy = nx * d.y();
+  const std::size_t nx = static_cast<std::size_t>(d.x()), nxy = nx * d.y();
   cluster.assign(1, start);
   mask[start] = 2;
   for (std::size_t next = 0; next < cluster.size(); ++next) {
-    const auto at = static_cast<std::ptrdiff_t>(cluster[next]);
-    for (std::ptrdiff_t c = -nxy; c <= nxy; c += nxy)
-      for (std::ptrdiff_t b = -nx; b <= nx; b += nx)
-        for (std::ptrdiff_t a = -1; a <= 1; ++a) {
-          const std::ptrdiff_t n = at + c + b + a;  // in range: the faces hold no mask voxel
-          if (mask[static_cast<std::size_t>(n)] != 1) continue;
-          mask[static_cast<std::size_t>(n)] = 2;
-          cluster.push_back(static_cast<std::size_t>(n));
-        }
+    const std::size_t at = cluster[next];
+    // (In range: the volume's faces hold no mask voxel.)
+    for (const std::size_t n : {at - 1, at + 1, at - nx, at + nx, at - nxy, at + nxy}) {
+      if (mask[n] != 1) continue;
+      mask[n] = 2;
+      cluster.push_back(n);
+    }
   }
+}
+
+// The index of a voxel given as Volume::linear_index.
+Vec3i index_of(const Vec3i& d, std::size_t voxel) {
+  const auto nx = static_cast<std::size_t>(d.x()), ny = static_cast<std::size_t>(d.y());
+  return Vec3i(static_cast<int>(voxel % nx), static_cast<int>(voxel / nx % ny),
+               static_cast<int>(voxel / (nx * ny)));
 }
 
 // The longest side of the index box holding the voxels.
 int longest_side_vox(const Vec3i& d, const std::vector<std::size_t>& voxels) {
   Vec3i lo = d, hi = Vec3i::Zero();
   for (const std::size_t v : voxels) {
-    const Vec3i x(static_cast<int>(v % d.x()), static_cast<int>(v / d.x() % d.y()),
-                  static_cast<int>(v / (static_cast<std::size_t>(d.x()) * d.y())));
+    const Vec3i x = index_of(d, v);
     lo = lo.cwiseMin(x), hi = hi.cwiseMax(x);
   }
   return (hi - lo).maxCoeff() + 1;
@@ -240,10 +245,7 @@ struct Beams {
   float tissue_top;  // the sector's 90th percentile: a mean beside a shadow is rarely over it
 
   Vec3f at_mm(std::size_t voxel) const {
-    const Vec3i d = image.dims();
-    const auto i = static_cast<int>(voxel % d.x()), j = static_cast<int>(voxel / d.x() % d.y()),
-               k = static_cast<int>(voxel / (static_cast<std::size_t>(d.x()) * d.y()));
-    return image.index_to_mm(Vec3f(i, j, k));
+    return image.index_to_mm(index_of(image.dims(), voxel).cast<float>());
   }
 
   // The voxel nearest to q in the data, or -1 (outside the volume or the sector).
@@ -296,13 +298,14 @@ struct Beams {
 
   // The shadow ratios of the cluster's far side, when it casts: at least kMinCasters of them
   // under kShadowRatio, a third of the far side or more (a bright tissue wall's far side has a
-  // few by chance). Empty otherwise. At most kMostTested voxels of the far side are tested,
+  // few by chance). Empty otherwise. At most about kMostTested voxels of the far side are tested,
   // evenly spread: a large bright structure costs no more than a needle.
   std::vector<float> cluster_ratios(const std::vector<std::size_t>& cluster,
                                     const std::vector<std::uint8_t>& bright) const {
     std::vector<Vec3f> far;
-    for (const std::size_t v : cluster)
-      if (const Vec3f p = at_mm(v); far_side(p, bright)) far.push_back(p);
+    const std::size_t step = cluster.size() / (8 * kMostTested) + 1;  // (a large cluster: a sample)
+    for (std::size_t c = 0; c < cluster.size(); c += step)
+      if (const Vec3f p = at_mm(cluster[c]); far_side(p, bright)) far.push_back(p);
     const std::size_t stride = far.size() / kMostTested + 1;
     std::vector<float> ratios;
     std::size_t tested = 0;
@@ -330,24 +333,29 @@ class ShadowMap {
     float nearest = std::numeric_limits<float>::max(), farthest = 0.0f;
     for (const std::size_t c : casters) {
       const Vec3f d = beams.at_mm(c) - beams.apex_mm;
+      if (!ahead(d)) continue;
       lo = lo.cwiseMin(tangent(d)), hi = hi.cwiseMax(tangent(d));
       nearest = std::min(nearest, d.dot(e3_)), farthest = std::max(farthest, d.dot(e3_));
     }
-    // A caster covers 0.7 voxel around its centre; cells of half a voxel at the farthest depth.
+    if (!(farthest > 0.0f)) return;  // (no caster ahead of the apex: an empty map)
+    // A caster covers 0.7 voxel around its centre; cells of half a voxel at the farthest depth,
+    // coarser where that would take more than kMostCells a side.
     const float reach = kFootprintVox * beams.vox_mm / nearest;
     lo_ = lo.array() - reach;
-    cell_ = 0.5f * beams.vox_mm / farthest;
-    nu_ = std::min(kMostCells, static_cast<int>((hi.x() - lo.x() + 2 * reach) / cell_) + 1);
-    nv_ = std::min(kMostCells, static_cast<int>((hi.y() - lo.y() + 2 * reach) / cell_) + 1);
+    const Eigen::Vector2f span = (hi - lo).array() + 2.0f * reach;
+    cell_ = std::max(0.5f * beams.vox_mm / farthest, span.maxCoeff() / kMostCells);
+    nu_ = static_cast<int>(span.x() / cell_) + 1;
+    nv_ = static_cast<int>(span.y() / cell_) + 1;
     far_mm_.assign(static_cast<std::size_t>(nu_) * nv_, 0.0f);
-    for (const std::size_t c : casters) mark(beams.at_mm(c) - beams.apex_mm);
+    for (const std::size_t c : casters)
+      if (const Vec3f d = beams.at_mm(c) - beams.apex_mm; ahead(d)) mark(d);
     soften_edge();
   }
 
   // How deep p lies in the shadow: 1 inside it, 0 outside, between on its edge.
   float depth_in(const Vec3f& p_mm) const {
     const Vec3f d = p_mm - beams_.apex_mm;
-    if (d.dot(e3_) <= 0.0f) return 0.0f;
+    if (far_mm_.empty() || !ahead(d)) return 0.0f;
     const Eigen::Vector2f t = (tangent(d) - lo_) / cell_;
     const int u = static_cast<int>(t.x()), v = static_cast<int>(t.y());
     if (t.x() < 0.0f || t.y() < 0.0f || u >= nu_ || v >= nv_) return 0.0f;
@@ -357,16 +365,20 @@ class ShadowMap {
 
  private:
   static constexpr float kFootprintVox = 0.7f;
-  static constexpr int kMostCells = 4096;
+  static constexpr int kMostCells = 1024;
+
+  // Whether d (from the apex) points ahead of it, a voxel or more along the casters' beam.
+  bool ahead(const Vec3f& d) const { return d.dot(e3_) >= beams_.vox_mm; }
 
   Eigen::Vector2f tangent(const Vec3f& d) const {
     return Eigen::Vector2f(d.dot(e1_), d.dot(e2_)) / d.dot(e3_);
   }
 
-  // The cells within the caster's footprint (kFootprintVox at its depth) take its range.
+  // The cells within the caster's footprint (kFootprintVox at its depth, and at least its own
+  // cell) take its range.
   void mark(const Vec3f& d) {
     const float depth = d.dot(e3_), range = d.norm();
-    const float r = kFootprintVox * beams_.vox_mm / depth / cell_;
+    const float r = std::max(0.75f, kFootprintVox * beams_.vox_mm / depth / cell_);
     const Eigen::Vector2f t = (tangent(d) - lo_) / cell_;
     for (int v = std::max(0, static_cast<int>(t.y() - r));
          v <= std::min(nv_ - 1, static_cast<int>(t.y() + r)); ++v)
