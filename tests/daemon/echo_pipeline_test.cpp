@@ -204,9 +204,8 @@ TEST(EchoPipeline, ASuspectWarmResultGetsNoSecondOpinion) {
 // leaves; the coarse retry (docs/stopping.md departure 12) finds the target with its topology,
 // the fine fit takes its surface back out to the wall (measured 2026-12-04: Dice 0.892-0.911 →
 // 0.915-0.936, volume −13.6 to −1.7 % → −5.7 to +5.1 %), and the result is called suspect.
-// With the needle's shadow lifted (item 17; 2026-12-05) the cyst-needle of seed 1 reads 0.897 and
-// +9.5 % (before 0.914, +5.6 %): its coarse Ψ_cost balloon reaches a dark patch of tissue beside
-// the cyst, a lobe of 1 300 voxels, on a τ_cost 4 % higher.
+// With the needle's shadow lifted (item 17; 2026-12-05): cyst-needles 0.919 and 0.941, volume
+// +4.3 and −1.7 % (before 0.914 and 0.927).
 TEST(EchoPipeline, CoarseRetryGetsTheGenusRightAtContrastPointThree) {
   for (const auto& [name, genus] : {std::tuple{"sphere", 0}, std::tuple{"cyst-needle", 1}})
     for (unsigned seed : {1u, 2u}) {
@@ -215,11 +214,11 @@ TEST(EchoPipeline, CoarseRetryGetsTheGenusRightAtContrastPointThree) {
       ASSERT_TRUE(r.ok && r.labels) << name << " seed " << seed << ": " << r.error;
       EXPECT_TRUE(r.coarse_retry) << name << " seed " << seed;
       EXPECT_EQ(r.topology.genus, genus) << name << " seed " << seed;
-      EXPECT_GE(internal::dice(*r.labels, phantom.truth), 0.89) << name << " seed " << seed;
+      EXPECT_GE(internal::dice(*r.labels, phantom.truth), 0.91) << name << " seed " << seed;
       double truth_voxels = 0;
       for (const std::uint8_t v : phantom.truth.u8()) truth_voxels += v != 0;
       const double truth_ml = truth_voxels * phantom.truth.spacing_mm().prod() * 1e-3;
-      EXPECT_NEAR(r.enclosed_volume_ml / truth_ml, 1.0, 0.1) << name << " seed " << seed;
+      EXPECT_NEAR(r.enclosed_volume_ml / truth_ml, 1.0, 0.07) << name << " seed " << seed;
       EXPECT_FALSE(r.quality_ok) << name << " seed " << seed;
       EXPECT_NE(std::find(r.quality_reasons.begin(), r.quality_reasons.end(), "coarse pre-filter"),
                 r.quality_reasons.end());
@@ -247,6 +246,21 @@ TEST(EchoPipeline, EveryPhantomKeepsItsGenusAtContrastHalf) {
       EXPECT_TRUE(r.quality_ok) << "seed " << seed;
       EXPECT_GE(dice, 0.93) << "seed " << seed;
     }
+}
+
+// The 64³ needle (radius 1.25 voxels, 0.6 mm: a biopsy needle's) was not found until casters were
+// judged on the 7-voxel cross rather than the 3×3×3 mean; its shadow left, both contrast-0.7
+// cyst-needles came out ok with genus 0 (Dice 0.920, 0.907: the tunnel closed). Lifted
+// (2026-12-05): genus 1, 0.936 and 0.929.
+TEST(EchoPipeline, AThinNeedlesShadowIsLiftedAndItsTunnelKept) {
+  for (unsigned seed : {1u, 2u}) {
+    const sim::Phantom phantom = echo_phantom("cyst-needle", 0.7f, 64, seed);
+    const PipelineResult r = run_pipeline(phantom.image, phantom.seed_mm, PipelineConfig{});
+    ASSERT_TRUE(r.ok && r.labels) << "seed " << seed << ": " << r.error;
+    EXPECT_LT(r.shadow_factor, 0.5f) << "seed " << seed;
+    EXPECT_EQ(r.topology.genus, 1) << "seed " << seed;
+    EXPECT_GE(internal::dice(*r.labels, phantom.truth), 0.92) << "seed " << seed;
+  }
 }
 
 // The wall fit (docs/stopping.md item 13) moves the pipeline's surface from where the speckle
