@@ -78,9 +78,9 @@ struct PipelineConfig {
   /// publishes the chain's last volume first: docs/tuning.md). 10: at 10 volumes/s chains of 20
   /// drifted out in the needle's shadow until the open patch refused them. 0 = off.
   int track_max_chain = 10;
-  /// Acoustic shadows lifted before the balloon (docs/stopping.md "The needle's shadow"): in a
-  /// probe's sector, what lies beyond a needle along the beam is multiplied back to the level
-  /// beside it (daemon/internal/shadow_gain.h). false: the image as it came.
+  /// Acoustic shadows lifted before the balloon (docs/stopping.md item 17): in a probe's sector,
+  /// what lies beyond a needle along the beam is multiplied back to the level beside it
+  /// (daemon/internal/shadow_gain.h). false: the image as it came.
   bool shadow_gain = true;
   bool want_labels = true;      // label volume on the input grid (inside = 1); seed tracking
                                 // does not need it (deepest_interior_mm comes from χ)

@@ -14,9 +14,9 @@ using volume::Vec3f;
 using volume::Vec3i;
 using volume::Volume;
 
-// A caster's 3×3×3 mean lies over this many times the sector's median: a needle reaches 2-3
-// times the tissue's echo, a tissue wall's specular echo under 1.8 times, speckle averaged over a
-// grain well under that.
+// A caster and its 7-voxel cross lie over this many times the sector's median: a needle reaches
+// 2-3 times the tissue's echo, a tissue wall's specular echo under 1.8 times, speckle averaged
+// over a cross rarely that.
 constexpr float kCasterLevel = 1.8f;
 // The beam's mean beyond a caster against the mean beside it: below this it is a shadow (a
 // caster with tissue beyond it like beside it reads 1).
@@ -181,7 +181,9 @@ SectorLevels sector_levels(const Volume& image, const std::vector<std::uint8_t>&
   return {quantile(sample, 0.5f), quantile(sample, 0.9f)};
 }
 
-// 1 for each voxel whose 3×3×3 mean lies over `level` (0 on the volume's faces).
+// 1 for each voxel over `level` whose 7-voxel cross (it and its face neighbours) averages over it
+// too; 0 on the volume's faces. (The cross, not the 3×3×3 cube: a biopsy needle a voxel or so
+// thick fills too little of the cube.)
 std::vector<std::uint8_t> bright_mask(const Volume& image, float level) {
   const Vec3i d = image.dims();
   const std::vector<float>& v = image.f32();
@@ -465,16 +467,15 @@ void lift_shadow(const Beams& beams, const std::vector<std::size_t>& casters, fl
 
 }  // namespace
 
-// One factor for the volume, the casters' lower quartile: a single caster's ratio varies with the
-// speckle along its beam, and casters at the needle's edge, their beam half in its shadow, read
-// up to the cut-off; the needle's core reads the shadow's depth.
+// One factor for the volume, the casters' median: a single caster's ratio varies with the speckle
+// along its beam (the lower quartile over-lifted and made columns of lifted speckle).
 ShadowGain compensate_shadows(Volume& image, const std::vector<std::uint8_t>& no_data,
                               const Vec3f& apex_mm) {
   ShadowGain gain;
   if (no_data.empty() || image.type() != volume::VoxelType::Float32) return gain;
   const SectorLevels levels = sector_levels(image, no_data);
-  // A caster's 3×3×3 mean lies over kCasterLevel times the median and over the 90th percentile
-  // (a sector that is mostly dark cavity or dropout has a low median).
+  // Casters lie over kCasterLevel times the median and over the 90th percentile (a sector that
+  // is mostly dark cavity or dropout has a low median).
   const float level = std::max(kCasterLevel * levels.median, levels.p90);
   if (!(level > 0.0f)) return gain;
   const Beams beams{image, no_data, apex_mm, image.spacing_mm().minCoeff(), levels.p90};

@@ -28,12 +28,13 @@ struct ShadowGain {
 
 /// Lifts the acoustic shadows in `image` (Float32; the working image, the no-data region already
 /// filled) by 1 / the shadow's factor. Casters are the far side, along the beam, of bright
-/// clusters: face-connected voxels whose 3×3×3 mean is over 1.8 times the sector's median and
-/// over its 90th percentile (a needle; speckle and tissue walls are not that bright), 20 or more
-/// and 12 voxels long or more (a line, not a speckle grain). A caster's beam, 3-20 voxels beyond
-/// it, reads under 0.6 of the same mean 6 voxels across the beam on both sides; a cluster casts
-/// when 20 of its far side and a third of those tested do. The shadow is every voxel whose beam
-/// from the apex passed a caster more than a voxel before it (less on its edge).
+/// clusters: face-connected voxels that with their 7-voxel cross average over 1.8 times the
+/// sector's median and its 90th percentile (a needle; speckle and tissue walls are not that
+/// bright), 20 or more and 12 voxels long or more (a line, not a speckle grain). A caster's
+/// beam, 3-20 voxels beyond it, reads under 0.6 of the same mean 6 voxels across the beam on
+/// both sides; a cluster casts when 20 of its far side and a third of those tested do; the
+/// factor is their median. The shadow is every voxel whose beam from the apex passed a caster
+/// more than a voxel before it (less on its edge).
 ShadowGain compensate_shadows(volume::Volume& image, const std::vector<std::uint8_t>& no_data,
                               const volume::Vec3f& apex_mm);
 
