@@ -19,6 +19,9 @@ namespace sonomesh::daemon::internal {
 std::optional<volume::Vec3f> sector_apex_mm(const volume::Volume& input,
                                             const std::vector<std::uint8_t>& no_data);
 
+/// The q-quantile of v (0 when empty).
+float quantile(std::vector<float> v, float q);
+
 /// What compensate_shadows found: the voxels it lifted and by how much (1 = none).
 struct ShadowGain {
   int casters = 0;             // voxels of the bright clusters that cast a shadow
