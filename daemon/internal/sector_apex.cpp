@@ -1,10 +1,10 @@
 // The probe's apex from the sector's no-data region (shadow_gain.h).
-#include "daemon/internal/shadow_gain.h"
-
 #include <Eigen/Dense>
 #include <algorithm>
 #include <array>
 #include <cmath>
+
+#include "daemon/internal/shadow_gain.h"
 
 namespace sonomesh::daemon::internal {
 namespace {
