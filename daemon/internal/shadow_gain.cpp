@@ -3,8 +3,10 @@
 
 #include <Eigen/Dense>
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <limits>
+#include <map>
 
 namespace sonomesh::daemon::internal {
 namespace {
@@ -24,6 +26,8 @@ constexpr float kShadowRatio = 0.6f;
 constexpr std::size_t kMinCasters = 20, kMostTested = 256;
 // ... and a cluster shorter than this along every axis is a grain or a blob, not a needle.
 constexpr int kMinLengthVox = 12;
+// A cluster that does not cast as a whole is judged again in blocks of this edge.
+constexpr int kBlockVox = 24;
 // Beyond: voxels 3-20 along the beam, past the reflector itself; beside: 6 voxels across the beam,
 // clear of a needle's shadow (its radius is 1.2-2.5 voxels in our phantoms).
 constexpr int kBeyondFirstVox = 3, kBeyondLastVox = 20;
@@ -326,6 +330,34 @@ void lift_shadow(const Beams& beams, const std::vector<std::size_t>& casters, fl
       }
 }
 
+// The parts of a cluster that cast, their ratios added to `ratios`: the cluster, or when it does
+// not cast as a whole and spans more than a block, its parts in each kBlockVox³ block. (A steep
+// needle enters through the near field's bright clutter and joins its cluster, whose far side
+// as a whole does not cast.)
+std::vector<std::vector<std::size_t>> casting_parts(const Beams& beams,
+                                                    const std::vector<std::size_t>& cluster,
+                                                    const std::vector<std::uint8_t>& bright,
+                                                    std::vector<float>& ratios) {
+  std::vector<std::vector<std::size_t>> parts;
+  const auto take = [&](const std::vector<std::size_t>& part) {
+    const std::vector<float> found = beams.cluster_ratios(part, bright);
+    if (found.empty()) return;
+    ratios.insert(ratios.end(), found.begin(), found.end());
+    parts.push_back(part);
+  };
+  take(cluster);
+  const Vec3i d = beams.image.dims();
+  if (!parts.empty() || longest_side_vox(d, cluster) <= kBlockVox) return parts;
+  std::map<std::array<int, 3>, std::vector<std::size_t>> blocks;
+  for (const std::size_t v : cluster) {
+    const Vec3i b = index_of(d, v) / kBlockVox;
+    blocks[{b.x(), b.y(), b.z()}].push_back(v);
+  }
+  for (const auto& [key, part] : blocks)
+    if (part.size() >= kMinCasters) take(part);
+  return parts;
+}
+
 }  // namespace
 
 float quantile(std::vector<float> v, float q) {
@@ -356,10 +388,8 @@ ShadowGain compensate_shadows(Volume& image, const std::vector<std::uint8_t>& no
     // A needle is a line of casters; a speckle grain or a clutter blob is short.
     if (cluster.size() < kMinCasters || longest_side_vox(image.dims(), cluster) < kMinLengthVox)
       continue;
-    const std::vector<float> found = beams.cluster_ratios(cluster, bright);
-    if (found.empty()) continue;
-    ratios.insert(ratios.end(), found.begin(), found.end());
-    casters.insert(casters.end(), cluster.begin(), cluster.end());
+    for (const std::vector<std::size_t>& part : casting_parts(beams, cluster, bright, ratios))
+      casters.insert(casters.end(), part.begin(), part.end());
   }
   if (casters.empty()) return gain;
   gain.casters = static_cast<int>(casters.size());
