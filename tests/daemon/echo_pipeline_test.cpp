@@ -229,7 +229,7 @@ TEST(EchoPipeline, CoarseRetryGetsTheGenusRightAtContrastPointThree) {
 // Measured (2026-12-04, docs/results.md): Dice 0.920-0.961, genus right in all eight; the
 // cyst-needles suspect for the seal along the needle's shadow, the rest ok. The 0.93 is
 // not met by the double tori (0.920, 0.928). With the needle's shadow lifted (docs/stopping.md
-// item 17; 2026-12-05) the cyst-needles are ok too, Dice 0.940 and 0.953 (before 0.932, 0.942).
+// item 17; 2026-12-05) the cyst-needles are ok too, Dice 0.940 and 0.952 (before 0.932, 0.942).
 TEST(EchoPipeline, EveryPhantomKeepsItsGenusAtContrastHalf) {
   for (const auto& [name, genus] : {std::tuple{"lv", 0}, std::tuple{"cyst-needle", 1},
                                     std::tuple{"torus", 1}, std::tuple{"double-torus", 2}})
