@@ -78,13 +78,10 @@ constexpr segment::WallFitOptions kFineFit{.reach_vox = 4.0f, .rings = 7, .max_m
 
 // Fits a coarse retry's surface to the wall on a finer image than the first pass's: the coarse
 // pre-filter blurs the wall inward. Leaves `buffers.smoothed` holding that image.
-void fine_fit(const volume::Volume& input, const Vec3f& seed_mm, const PipelineConfig& config,
-              float first_sigma_mm, PipelineBuffers& buffers, PipelineResult& result) {
-  PipelineConfig fine = config;
-  fine.smooth_sigma_mm = kFineFitSigmaFraction * first_sigma_mm;
-  fine.target = result.target;  // (decided once, by the first pass)
+void fine_fit(const volume::Volume& input, const PipelineConfig& config, float first_sigma_mm,
+              PipelineBuffers& buffers, PipelineResult& result) {
   PipelineResult smoothed;
-  smooth_stage(input, seed_mm, fine, buffers, smoothed);
+  smooth_again(input, result, kFineFitSigmaFraction * first_sigma_mm, buffers, smoothed);
   const auto t = Clock::now();
   result.mesh = segment::fit_to_wall(buffers.smoothed, result.mesh, result.balloon_stats, kFineFit,
                                      config.balloon.threads);
@@ -151,7 +148,7 @@ void coarse_retry(const volume::Volume& input, const Vec3f& seed_mm, const Pipel
       coarse_sigma_mm(input, result.speckle_grain_mm, config.coarse_retry_grains);
   coarse.target = result.target;  // (decided once, by the first pass)
   PipelineResult other;
-  smooth_stage(input, seed_mm, coarse, buffers, other);
+  smooth_again(input, result, *coarse.smooth_sigma_mm, buffers, other);
   bool judged = false;
   std::string other_error =
       segment_opinions(input, seed_mm, coarse, buffers, nullptr, stop, judge, other, judged);
@@ -161,7 +158,7 @@ void coarse_retry(const volume::Volume& input, const Vec3f& seed_mm, const Pipel
   other.timings.smooth_ms += result.timings.smooth_ms;
   if (!(other.ok && !stalled_on_texture(other)) && !better(other, result)) return;
   if (config.wall_fit && other.ok && other.topology.manifold) {
-    fine_fit(input, seed_mm, config, result.smooth_sigma_mm, buffers, other);
+    fine_fit(input, config, result.smooth_sigma_mm, buffers, other);
     judge(other, other_error);  // (the verdict's wall test now on the finer image)
   }
   result = std::move(other);

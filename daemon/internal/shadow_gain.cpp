@@ -303,6 +303,7 @@ std::pair<Vec3i, Vec3i> shadow_box(const Beams& beams, const std::vector<std::si
   Vec3f lo = Vec3f::Constant(std::numeric_limits<float>::max()), hi = -lo;
   for (const std::size_t c : casters) {
     const Vec3f p = beams.at_mm(c), d = p - beams.apex_mm;
+    if (d.norm() < beams.vox_mm) continue;  // (at the apex: no beam; ShadowMap leaves it out)
     for (const Vec3f& q : {p, Vec3f(beams.apex_mm + d * (reach_mm / d.norm()))}) {
       const Vec3f x = image.mm_to_index(q);
       lo = lo.cwiseMin(x), hi = hi.cwiseMax(x);
@@ -330,12 +331,14 @@ void lift_shadow(const Beams& beams, const std::vector<std::size_t>& casters, fl
       }
 }
 
-// The parts of a cluster that cast, their ratios added to `ratios`: the cluster, or when it does
-// not cast as a whole and spans more than a block, its parts in each kBlockVox³ block. (A steep
+// The parts of a cluster (`length_vox` its longest side) that cast, their ratios added to
+// `ratios`: the cluster, or when it does not cast as a whole and spans more than a block, its
+// parts in each kBlockVox³ block. (A steep
 // needle enters through the near field's bright clutter and joins its cluster, whose far side
 // as a whole does not cast.)
 std::vector<std::vector<std::size_t>> casting_parts(const Beams& beams,
                                                     const std::vector<std::size_t>& cluster,
+                                                    int length_vox,
                                                     const std::vector<std::uint8_t>& bright,
                                                     std::vector<float>& ratios) {
   std::vector<std::vector<std::size_t>> parts;
@@ -347,7 +350,7 @@ std::vector<std::vector<std::size_t>> casting_parts(const Beams& beams,
   };
   take(cluster);
   const Vec3i d = beams.image.dims();
-  if (!parts.empty() || longest_side_vox(d, cluster) <= kBlockVox) return parts;
+  if (!parts.empty() || length_vox <= kBlockVox) return parts;
   std::map<std::array<int, 3>, std::vector<std::size_t>> blocks;
   for (const std::size_t v : cluster) {
     const Vec3i b = index_of(d, v) / kBlockVox;
@@ -386,9 +389,10 @@ ShadowGain compensate_shadows(Volume& image, const std::vector<std::uint8_t>& no
     if (bright[at] != 1) continue;
     take_cluster(image.dims(), at, bright, cluster);
     // A needle is a line of casters; a speckle grain or a clutter blob is short.
-    if (cluster.size() < kMinCasters || longest_side_vox(image.dims(), cluster) < kMinLengthVox)
-      continue;
-    for (const std::vector<std::size_t>& part : casting_parts(beams, cluster, bright, ratios))
+    if (cluster.size() < kMinCasters) continue;
+    const int length_vox = longest_side_vox(image.dims(), cluster);
+    if (length_vox < kMinLengthVox) continue;
+    for (const auto& part : casting_parts(beams, cluster, length_vox, bright, ratios))
       casters.insert(casters.end(), part.begin(), part.end());
   }
   if (casters.empty()) return gain;

@@ -19,6 +19,13 @@ const std::vector<std::uint8_t>& smooth_stage(const volume::Volume& input, const
                                               const PipelineConfig& config,
                                               PipelineBuffers& buffers, PipelineResult& result);
 
+/// The same volume smoothed again at `sigma_mm` (the coarse retry, the fine fit), after
+/// smooth_stage gave `first`: the image it left in `buffers` (polarity, no-data fill, lifted
+/// shadow) is smoothed as it is, not made again; `result` takes first's grain, polarity and
+/// shadow.
+void smooth_again(const volume::Volume& input, const PipelineResult& first, float sigma_mm,
+                  PipelineBuffers& buffers, PipelineResult& result);
+
 /// The reconstruction's options for `input`: the configured ones, on cells of its finest spacing
 /// when `config.cell_from_voxel`.
 reconstruct::PoissonOptions poisson_options(const PipelineConfig& config,

@@ -255,10 +255,14 @@ bool update_no_data(const Volume& input, NoDataRegion& region) {
   return false;
 }
 
+bool needs_working_image(TargetPolarity target, const NoDataRegion& no_data) {
+  return target == TargetPolarity::Bright || !no_data.mask.empty();
+}
+
 bool working_image(const Volume& input, TargetPolarity target, const NoDataRegion& no_data,
                    Volume& out) {
+  if (!needs_working_image(target, no_data)) return false;
   const bool bright = target == TargetPolarity::Bright;
-  if (!bright && no_data.mask.empty()) return false;
   // (A buffer of the right size is kept: a fresh one is zero-filled first, then written again.)
   if (out.type() != volume::VoxelType::Float32 || out.dims() != input.dims() ||
       out.spacing_mm() != input.spacing_mm())
