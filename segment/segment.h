@@ -81,6 +81,11 @@ struct BalloonOptions {
   float tau_curv = 1.2f;  // τ_curv: mean H(PQ)/|PQ| over P's edges (0 flat, 2 folded)
   // A marked voxel is "the other side" below this cosine between its front's normal and P's.
   float self_intersection_cos = -0.5f;
+  // Departure: a crumpled balloon (its vertices doubled while A_t grew by under 3 %: fronts
+  // meeting at an angle pass the test above and trade places) inflates once more from its start
+  // with this stricter cosine. Off at or below self_intersection_cos (−1), and where the seed's
+  // level is within 40 % of the tissue's (docs/stopping.md item 18).
+  float crumple_self_intersection_cos = 0.0f;
 
   // --- Remeshing ---
   float target_edge_vox = 1.75f;  // L: split > 4/3 L, collapse < 4/5 L
@@ -146,7 +151,10 @@ struct BalloonStats {
   // Leaks sealed: the balloon from before the leak inflated again with the vertices at the gap
   // it leaked through stopped there, as a reader closes a wall's dropout (docs/stopping.md).
   int leak_seals = 0;
-  int sealed_vertices = 0;           // summed over the seals
+  int sealed_vertices = 0;  // summed over the seals
+  // The balloon crumpled and inflated again from its start with the stricter self-intersection
+  // test (BalloonOptions::crumple_self_intersection_cos); at most once.
+  int crumple_restarts = 0;
   std::size_t front_voxels = 0;      // voxels in A_t (swept by the front) at the end
   std::size_t front_grid_bytes = 0;  // memory of A_t's sparse grid
 };

@@ -9,6 +9,40 @@ namespace {
 nlohmann::json vec_json(const Vec3f& v) { return {v.x(), v.y(), v.z()}; }
 nlohmann::json vec_json(const Vec3i& v) { return {v.x(), v.y(), v.z()}; }
 
+// The report's balloon section: iterations, thresholds, levels, stop reasons, and how it ended.
+nlohmann::json balloon_json(const PipelineResult& result) {
+  const StopCounts& s = result.stop_counts;
+  nlohmann::json balloon = {{"iterations", result.balloon_iterations},
+                            {"converged", result.balloon_converged},
+                            {"tau_cost", result.balloon_stats.tau_cost_used},
+                            {"seed_level", result.balloon_stats.seed_level},
+                            {"seed_sigma", result.balloon_stats.seed_sigma},
+                            {"tissue_level", result.balloon_stats.tissue_level},
+                            {"vertices", result.balloon.vertices.size()},
+                            {"faces", result.balloon.triangles.size()},
+                            {"stop_reasons",
+                             {{"moving", s.moving},
+                              {"boundary", s.boundary},
+                              {"curvature", s.curvature},
+                              {"self_intersection", s.self_intersection},
+                              {"iteration_limit", s.iteration_limit}}},
+                            {"opened_points", result.opened_points}};
+  // Ended before the limit because it swept nothing new: its movers count as at the limit.
+  if (result.balloon_stats.swept_out) balloon["swept_out"] = true;
+  // A leaked balloon's surface is the one from before the leak (quality "leak bound").
+  if (result.balloon_stats.leaked)
+    balloon["leak_rollback_iteration"] = result.balloon_stats.leak_rollback_iteration;
+  // A sealed leak's vertices at the gap stopped there, not on a wall (docs/stopping.md).
+  if (result.balloon_stats.leak_seals > 0) {
+    balloon["leak_seals"] = result.balloon_stats.leak_seals;
+    balloon["sealed_vertices"] = result.balloon_stats.sealed_vertices;
+  }
+  // The balloon crumpled and inflated again with the stricter self-intersection test.
+  if (result.balloon_stats.crumple_restarts > 0)
+    balloon["crumple_restarts"] = result.balloon_stats.crumple_restarts;
+  return balloon;
+}
+
 }  // namespace
 
 Vec3i seed_index_of(const volume::Volume& input, const Vec3f& seed_mm) {
@@ -54,32 +88,7 @@ nlohmann::json report_json(const PipelineResult& result, const std::string& inpu
   for (const auto& [stage, ms] : t.stages()) timings[stage] = ms;
   timings["labels"] = t.labels_ms;
   timings["total"] = t.total_ms;
-  const StopCounts& s = result.stop_counts;
-  report["balloon"] = {{"iterations", result.balloon_iterations},
-                       {"converged", result.balloon_converged},
-                       {"tau_cost", result.balloon_stats.tau_cost_used},
-                       {"seed_level", result.balloon_stats.seed_level},
-                       {"seed_sigma", result.balloon_stats.seed_sigma},
-                       {"tissue_level", result.balloon_stats.tissue_level},
-                       {"vertices", result.balloon.vertices.size()},
-                       {"faces", result.balloon.triangles.size()},
-                       {"stop_reasons",
-                        {{"moving", s.moving},
-                         {"boundary", s.boundary},
-                         {"curvature", s.curvature},
-                         {"self_intersection", s.self_intersection},
-                         {"iteration_limit", s.iteration_limit}}},
-                       {"opened_points", result.opened_points}};
-  // Ended before the limit because it swept nothing new: its movers count as at the limit.
-  if (result.balloon_stats.swept_out) report["balloon"]["swept_out"] = true;
-  // A leaked balloon's surface is the one from before the leak (quality "leak bound").
-  if (result.balloon_stats.leaked)
-    report["balloon"]["leak_rollback_iteration"] = result.balloon_stats.leak_rollback_iteration;
-  // A sealed leak's vertices at the gap stopped there, not on a wall (docs/stopping.md).
-  if (result.balloon_stats.leak_seals > 0) {
-    report["balloon"]["leak_seals"] = result.balloon_stats.leak_seals;
-    report["balloon"]["sealed_vertices"] = result.balloon_stats.sealed_vertices;
-  }
+  report["balloon"] = balloon_json(result);
   report["reconstruction"] = {{"grid", vec_json(result.grid_dims)},
                               {"cell_mm", result.grid_cell_mm}};
   if (result.dark_tunnels_closed) report["reconstruction"]["dark_tunnels_closed"] = true;

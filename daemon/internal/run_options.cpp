@@ -279,6 +279,8 @@ std::vector<OptionSpec> balloon_options() {
   o.push_back(num(t, "tau_curv", "", above(0, 2), "curvature stop threshold", BAL(tau_curv)));
   o.push_back(num(t, "self_intersection_cos", "", closed(-1, 1),
                   "cosine of the self-intersection test", BAL(self_intersection_cos)));
+  o.push_back(num(t, "crumple_self_intersection_cos", "", closed(-1, 1),
+                  "the test's cosine after a crumple; -1 off", BAL(crumple_self_intersection_cos)));
   o.push_back(num(t, "target_edge_vox", "vox", closed(0.25, 20), "remeshing edge length L",
                   BAL(target_edge_vox)));
   o.push_back(num(t, "remesh_every_iterations", "iterations", closed(1, 1000), "remeshing period",
@@ -354,18 +356,16 @@ const std::vector<OptionSpec>& run_options() {
   static const std::vector<OptionSpec> table = [] {
     std::vector<OptionSpec> all;
     for (auto part : {daemon_options(), source_and_output_options(), pipeline_options(),
-                      balloon_options(), poisson_options()}) {
+                      balloon_options(), poisson_options()})
       for (auto& spec : part) all.push_back(std::move(spec));
-    }
     return all;
   }();
   return table;
 }
 
 const OptionSpec* find_option(const std::string& table, const std::string& key) {
-  for (const OptionSpec& spec : run_options()) {
+  for (const OptionSpec& spec : run_options())
     if (table == spec.table && key == spec.key) return &spec;
-  }
   return nullptr;
 }
 

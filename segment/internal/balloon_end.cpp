@@ -1,5 +1,6 @@
 // How the balloon's first pass ends (balloon_evolution.h): the stall tests, the end once A_t
-// stops growing, and the folds opened in the balloon it leaves (docs/stopping.md item 16).
+// stops growing, the crumple test, and the folds opened in the balloon it leaves (docs/stopping.md
+// item 16).
 #include <algorithm>
 #include <vector>
 
@@ -36,6 +37,19 @@ bool BalloonEvolution::swept_nothing_new() {
   windows_unswept_ = swept == swept_at_window_ ? windows_unswept_ + 1 : 0;
   swept_at_window_ = swept;
   return options_.swept_out_windows > 0 && windows_unswept_ >= options_.swept_out_windows;
+}
+
+// Crumpled: the vertices at least doubled since an earlier remeshing pass while A_t grew by
+// under 3 %. A leak sweeps new tissue as it grows; a crumple adds area only where the balloon
+// has already swept (fronts that met at an angle pass the self-intersection test and trade
+// places). |A_t| never falls, so the scan back ends at the first pass 3 % smaller.
+bool BalloonEvolution::crumpling() {
+  const PassSize now{a_.pos.size(), marks_.grid().marked_count()};
+  pass_sizes_.push_back(now);
+  for (auto it = pass_sizes_.rbegin() + 1;
+       it != pass_sizes_.rend() && 100 * now.swept < 103 * it->swept; ++it)
+    if (now.vertices >= 2 * it->vertices) return true;
+  return false;
 }
 
 // A vertex the boundary cost stopped, with the other side of the balloon ahead of it and no wall,

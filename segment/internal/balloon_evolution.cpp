@@ -34,19 +34,11 @@ RemeshLimits remesh_limits(const BalloonOptions& o, float vox_mm) {
   return {0.8f * o.target_edge_vox * vox_mm, (4.0f / 3.0f) * o.target_edge_vox * vox_mm};
 }
 
-// S^0 as a BalloonMesh of its own, so that both constructors start from a given mesh.
-static BalloonMesh uv_sphere(const Vec3f& centre_mm, float radius_mm) {
+BalloonMesh start_sphere(const Vec3f& seed_mm, float radius_mm) {
   BalloonMesh bm;
-  make_uv_sphere(bm, centre_mm, radius_mm, 10, 11);
+  make_uv_sphere(bm, seed_mm, radius_mm, 10, 11);
   return bm;
 }
-
-BalloonEvolution::BalloonEvolution(const volume::Volume& smoothed, const ImageSampler& sampler,
-                                   const BalloonOptions& options, const CostRule& cost,
-                                   const WallSnap& snap, const Vec3f& seed_mm, float radius_mm,
-                                   BalloonStats& stats)
-    : BalloonEvolution(smoothed, sampler, options, cost, snap, uv_sphere(seed_mm, radius_mm),
-                       stats) {}
 
 BalloonEvolution::BalloonEvolution(const volume::Volume& smoothed, const ImageSampler& sampler,
                                    const BalloonOptions& options, const CostRule& cost,
@@ -119,6 +111,10 @@ void BalloonEvolution::run(std::stop_token stop) {
       keep_before_leak(it, now_moving);
       if (a_.pos.size() > max_vertices_ || leaking(now_moving)) {
         stats_.leaked = true;
+        break;
+      }
+      if (watch_crumple_ && crumpling()) {
+        crumpled_ = true;
         break;
       }
     }

@@ -23,19 +23,20 @@ namespace sonomesh::segment::internal {
 /// The remeshing range at the target edge length L: collapse < 4/5 L, split > 4/3 L.
 RemeshLimits remesh_limits(const BalloonOptions& options, float vox_mm);
 
+/// The cold start's S^0: a UV sphere of `radius_mm` at the seed.
+BalloonMesh start_sphere(const Vec3f& seed_mm, float radius_mm);
+
 class BalloonEvolution {
  public:
-  /// S^0: a UV sphere of `radius_mm` at the seed. `smoothed` (Float32) and `sampler` must outlive
-  /// the object; `stats` receives the counters and phase times.
-  BalloonEvolution(const volume::Volume& smoothed, const ImageSampler& sampler,
-                   const BalloonOptions& options, const CostRule& cost, const WallSnap& snap,
-                   const Vec3f& seed_mm, float radius_mm, BalloonStats& stats);
-  /// S^0: `start` (closed, genus 0, outward; the warm start's mesh, warm_start.h), its vertex
+  /// S^0: `start` (closed, genus 0, outward: start_sphere, or the warm start's mesh,
+  /// warm_start.h), its vertex
   /// states as given. A_t starts empty: the previous volume's swept set is not carried (a
   /// withdrawn needle's tunnel must not survive in it), and the start mesh's interior is not
   /// marked either, because the self-intersection test needs the normal of the front that swept
   /// a voxel, which an interior voxel has not got; the start surface itself marks its band with
   /// its normals here, so two sheets that meet again in the new volume see each other.
+  /// `smoothed` (Float32), `sampler` and `options` must outlive the object; `stats` receives
+  /// the counters and phase times.
   BalloonEvolution(const volume::Volume& smoothed, const ImageSampler& sampler,
                    const BalloonOptions& options, const CostRule& cost, const WallSnap& snap,
                    BalloonMesh start, BalloonStats& stats);
@@ -47,6 +48,12 @@ class BalloonEvolution {
   /// Evolves until every vertex stopped, the evolution stalled, the leak bound, a stop request
   /// or the iteration limit; then the remaining moving vertices get IterationLimit.
   void run(std::stop_token stop);
+
+  /// Ends the run once the balloon crumples (crumpling()), so that it can start again with the
+  /// stricter self-intersection test; off unless called.
+  void watch_for_crumple() { watch_crumple_ = true; }
+  /// The run ended because the balloon crumpled; its result is not to be taken.
+  bool crumpled() const { return crumpled_; }
 
   bool converged() const { return all_stopped_ || stats_.stalled; }
   /// Why the leak bound ended it (empty unless stats.leaked).
@@ -95,6 +102,7 @@ class BalloonEvolution {
   void keep_before_leak(int iteration, int now_moving);
   Snapshot snapshot(int iteration, int moving) const;
   bool leaking(int now_moving) const;
+  bool crumpling();
 
   const volume::Volume& smoothed_;
   const ImageSampler& sampler_;
@@ -128,6 +136,15 @@ class BalloonEvolution {
   int windows_without_drop_ = 0;
   std::size_t swept_at_window_ = 0;  // |A_t| at the last stall test
   int windows_unswept_ = 0;          // stall windows since |A_t| last grew
+
+  // Per remeshing pass, the vertices and |A_t| after it (the crumple test reads them back).
+  struct PassSize {
+    std::size_t vertices = 0;
+    std::size_t swept = 0;
+  };
+  std::vector<PassSize> pass_sizes_;
+  bool watch_crumple_ = false;
+  bool crumpled_ = false;
 };
 
 }  // namespace sonomesh::segment::internal

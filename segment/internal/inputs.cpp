@@ -40,6 +40,9 @@ std::string validate(const BalloonOptions& o) {
   if (!(o.level_stop_fraction >= 0.0f && o.level_stop_fraction < 1.0f))
     return "level_stop_fraction must be in [0, 1) (0 = off)";
   if (!(o.tau_curv > 0.0f)) return "tau_curv must be > 0";
+  if (!(o.self_intersection_cos >= -1.0f && o.self_intersection_cos <= 1.0f) ||
+      !(o.crumple_self_intersection_cos >= -1.0f && o.crumple_self_intersection_cos <= 1.0f))
+    return "self_intersection_cos and crumple_self_intersection_cos must be in [-1, 1]";
   if (!(o.snap_back_vox >= 0.0f) || !(o.snap_ahead_vox >= 0.0f) ||
       !(o.snap_back_vox + o.snap_ahead_vox <= 8.0f))
     return "snap_back_vox and snap_ahead_vox must be >= 0 with a sum <= 8";
