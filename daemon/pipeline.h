@@ -177,6 +177,10 @@ struct PipelineResult {
   /// level stop, as configured or as the second opinion); and whether the second opinion ran.
   std::string stop_rule = "cost";
   bool second_opinion = false;
+  /// The balloon crumpled (segment::BalloonStats::crumple_restarts), or started with the
+  /// stricter self-intersection test because one before it in the stream had: the next volume's
+  /// balloons start strict too, rather than crumple and inflate twice.
+  bool crumpled = false;
   /// Tunnels through the target's own darkness were filled (reconstruct::close_dark_tunnels).
   bool dark_tunnels_closed = false;
   /// More handles than a target has: the tunnels round columns of tissue were filled too.
@@ -252,6 +256,8 @@ struct WarmStart {
   // The previous result (without labels or χ), whose surface is tracked on this volume when the
   // checks allow it (PipelineConfig::track_max_chain). Null: the balloon starts from `balloon`.
   std::shared_ptr<const PipelineResult> previous;
+  // The previous result crumpled (PipelineResult::crumpled): the balloons start strict.
+  bool crumpled = false;
 };
 
 /// The warm start the next volume takes from `previous` (an ok result): its balloon, eroded by

@@ -96,11 +96,14 @@ void fine_fit(const volume::Volume& input, const PipelineConfig& config, float f
 std::string segment_opinions(const volume::Volume& input, const Vec3f& seed_mm,
                              const PipelineConfig& config, PipelineBuffers& buffers,
                              const WarmStart* warm, const std::stop_token& stop, const Judge& judge,
-                             PipelineResult& result, bool& judged, bool known_target) {
+                             PipelineResult& result, bool& judged,
+                             const PipelineResult* known_target) {
   const PipelineResult smoothed_only = result;
   const bool switchable =
       config.second_opinion_level_stop > 0.0f && !(config.balloon.level_stop_fraction > 0.0f);
-  const bool level_first = switchable && warm && warm->level_stop;
+  // (Ψ_cost first after a stale chain of the level stop's stalled on speckle at contrast 0.5.)
+  const bool level_first = switchable && ((warm && warm->level_stop) ||
+                                          (known_target && known_target->stop_rule == "level"));
   std::string error = segment_stages(input, seed_mm, with_level_stop(config, level_first), buffers,
                                      warm, stop, result);
   if (!switchable || error == "stopped" || result.warm_start) return error;

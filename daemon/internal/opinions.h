@@ -20,13 +20,15 @@ using Judge = std::function<void(PipelineResult&, std::string)>;
 /// (the second opinion, docs/stopping.md departure 9), the better kept. A warm result had an ok
 /// one before it with the same rule: when it is suspect, this volume is the odd one, and the next
 /// starts cold and may get the second opinion, so a live stream does not stall on one. With
-/// `known_target` (a cold start after tracked volumes of this target) an ok result is not asked
-/// again for looking down a tube. Sets `judged` when `result` has its verdict. Returns the
-/// error, empty if there is a surface.
+/// `known_target` (the last result, when this cold start follows tracked volumes of this
+/// target) an ok result is not asked
+/// again for looking down a tube, and its rule runs first, as a warm start's does. Sets `judged`
+/// when `result` has its verdict. Returns the error, empty if there is a surface.
 std::string segment_opinions(const volume::Volume& input, const Vec3f& seed_mm,
                              const PipelineConfig& config, PipelineBuffers& buffers,
                              const WarmStart* warm, const std::stop_token& stop, const Judge& judge,
-                             PipelineResult& result, bool& judged, bool known_target = false);
+                             PipelineResult& result, bool& judged,
+                             const PipelineResult* known_target = nullptr);
 
 /// The verdict's reasons for a balloon that stopped on the texture around the seed, or wrapped
 /// round it (more handles than a seeded target has: columns of speckle inside the cavity).

@@ -360,9 +360,20 @@ std::string segment_stages(const volume::Volume& input, const Vec3f& seed_mm,
 
 }  // namespace internal
 
-PipelineResult run_pipeline(const volume::Volume& input, const Vec3f& seed_mm,
-                            const PipelineConfig& config, PipelineBuffers& buffers,
-                            const WarmStart* warm, std::stop_token stop) {
+namespace {
+
+// A stream whose balloon crumpled: the balloons start with the stricter self-intersection test,
+// rather than crumple first and inflate twice.
+PipelineConfig after_crumple(const PipelineConfig& config) {
+  PipelineConfig strict = config;
+  segment::BalloonOptions& b = strict.balloon;
+  b.self_intersection_cos = std::max(b.self_intersection_cos, b.crumple_self_intersection_cos);
+  return strict;
+}
+
+PipelineResult run_volume(const volume::Volume& input, const Vec3f& seed_mm,
+                          const PipelineConfig& config, PipelineBuffers& buffers,
+                          const WarmStart* warm, std::stop_token stop) {
   const auto start = Clock::now();
   PipelineResult result;
   static const std::vector<std::uint8_t> kNoData;
@@ -401,6 +412,7 @@ PipelineResult run_pipeline(const volume::Volume& input, const Vec3f& seed_mm,
   // the balloon starts cold, and its ok result is not asked again for a tube (the level stop's
   // second opinion leaked for 2 s on the 128³ cyst-needle, whose open patch breathes 0.6-3.9 %).
   const bool stale = warm && warm->previous && warm->previous->tracking.chain > 0;
+  const PipelineResult* known_target = stale ? warm->previous.get() : nullptr;
   if (stale) {
     result.tracking.balloon_stale = true;
     result.start_reason = "the last balloon is " +
@@ -408,7 +420,7 @@ PipelineResult run_pipeline(const volume::Volume& input, const Vec3f& seed_mm,
     warm = nullptr;
   }
   std::string error = internal::segment_opinions(input, seed_mm, config, buffers, warm, stop, judge,
-                                                 result, judged, stale);
+                                                 result, judged, known_target);
   if (judged && result.second_opinion && !config.smooth_sigma_mm &&
       config.coarse_retry_grains > 0.0f && internal::stalled_on_texture(result))
     internal::coarse_retry(input, seed_mm, config, buffers, stop, judge, result, error);
@@ -419,6 +431,18 @@ PipelineResult run_pipeline(const volume::Volume& input, const Vec3f& seed_mm,
   if (config.track_max_chain > 0 && result.quality_ok)
     internal::measure_tracking_base(buffers, config.balloon.threads, result);
   return finish("");
+}
+
+}  // namespace
+
+PipelineResult run_pipeline(const volume::Volume& input, const Vec3f& seed_mm,
+                            const PipelineConfig& config, PipelineBuffers& buffers,
+                            const WarmStart* warm, std::stop_token stop) {
+  const bool strict = warm && warm->crumpled;
+  PipelineResult result = run_volume(input, seed_mm, strict ? after_crumple(config) : config,
+                                     buffers, warm, std::move(stop));
+  result.crumpled = result.crumpled || strict || result.balloon_stats.crumple_restarts > 0;
+  return result;
 }
 
 }  // namespace sonomesh::daemon

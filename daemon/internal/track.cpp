@@ -273,7 +273,8 @@ WarmStart warm_start_from(const PipelineResult& previous, float inset_mm) {
                    .inset_mm = inset_mm,
                    .genus = previous.topology.genus,
                    .level_stop = previous.stop_rule == "level",
-                   .previous = std::move(kept)};
+                   .previous = std::move(kept),
+                   .crumpled = previous.crumpled};
 }
 
 }  // namespace sonomesh::daemon
