@@ -5,6 +5,7 @@
 #include <array>
 #include <cmath>
 #include <numeric>
+#include <random>
 #include <utility>
 #include <vector>
 
@@ -163,6 +164,39 @@ BrightStructure deepest_bright_structure(const volume::Volume& smoothed,
 }
 
 bool solid_inside(const BrightStructure& structure) { return structure.deep_vox > kLeastDeepVox; }
+
+long deep_on_a_line(const volume::Volume& smoothed, const InsideRegion& region,
+                    const BrightStructure& structure) {
+  constexpr int kLines = 200;
+  constexpr std::size_t kMostSampled = 4096;
+  constexpr float kNearVox2 = 3.0f * 3.0f;
+  std::vector<Vec3f> deep;
+  for (const Vec3i& v : structure.voxels)
+    if (deep_inside(smoothed, region, v)) deep.push_back(v.cast<float>());
+  if (deep.size() < 2) return static_cast<long>(deep.size());
+  std::mt19937 random(1);  // (the same lines on every run: the verdict is repeatable)
+  const std::size_t all = deep.size();
+  if (all > kMostSampled) {
+    std::shuffle(deep.begin(), deep.end(), random);
+    deep.resize(kMostSampled);
+  }
+  std::uniform_int_distribution<std::size_t> pick(0, deep.size() - 1);
+  long most = 0;
+  for (int line = 0; line < kLines; ++line) {
+    const Vec3f a = deep[pick(random)];
+    const Vec3f d = deep[pick(random)] - a;
+    if (d.isZero()) continue;
+    const Vec3f u = d.normalized();
+    long near = 0;
+    for (const Vec3f& p : deep) {
+      const Vec3f r = p - a;
+      near += r.squaredNorm() - std::pow(r.dot(u), 2.0f) <= kNearVox2;
+    }
+    most = std::max(most, near);
+  }
+  return static_cast<long>(static_cast<double>(most) * static_cast<double>(all) /
+                           static_cast<double>(deep.size()));
+}
 
 bool passed_over(const BrightStructure& structure, const InsideRegion& region) {
   const int region_extent = (region.hi - region.lo + Vec3i::Ones()).maxCoeff();

@@ -42,6 +42,13 @@ BrightStructure deepest_bright_structure(const volume::Volume& smoothed,
 /// Whether the structure is more than the odd bright grain inside: over 40 deep voxels.
 bool solid_inside(const BrightStructure& structure);
 
+/// Of the structure's deep voxels, the most that lie within 3 voxels of one line through two of
+/// them: a needle's lie along one, while a web of blood-pool speckle through the whole inside
+/// has few on any. 200 lines drawn with a fixed seed; of a structure with more than 4 096 deep
+/// voxels, a sample of that many is counted and the count scaled up.
+long deep_on_a_line(const volume::Volume& smoothed, const InsideRegion& region,
+                    const BrightStructure& structure);
+
 /// Whether the surface passed over the structure (issue 15): solid_inside, at least a quarter
 /// of its voxels deep (not a shell along the surface's inside), and as long as half the
 /// region's box (across the target, not a cluster of bright grains).
