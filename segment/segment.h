@@ -83,8 +83,8 @@ struct BalloonOptions {
   float self_intersection_cos = -0.5f;
   // Departure: a crumpled balloon (its vertices doubled while A_t grew by under 3 %: fronts
   // meeting at an angle pass the test above and trade places) inflates once more from its start
-  // with this stricter cosine. Off at or below self_intersection_cos (−1), and where the seed's
-  // level is within 40 % of the tissue's (docs/stopping.md item 18).
+  // with this stricter cosine. Off at or below self_intersection_cos (−1), and at a low contrast
+  // (low_contrast; docs/stopping.md item 18).
   float crumple_self_intersection_cos = 0.0f;
 
   // --- Remeshing ---
@@ -158,6 +158,13 @@ struct BalloonStats {
   std::size_t front_voxels = 0;      // voxels in A_t (swept by the front) at the end
   std::size_t front_grid_bytes = 0;  // memory of A_t's sparse grid
 };
+
+/// Whether the seed region shows a low contrast: its level at 60 % of the tissue level or more
+/// (under 0.4 of contrast, on an image whose zero is no echo). There a wall half the contrast
+/// high is within the speckle's and the clutter's reach: the stricter self-intersection test
+/// after a crumple stops fronts on the speckle, and a wall test cannot tell the target's wall
+/// (docs/stopping.md items 4 and 18).
+bool low_contrast(const BalloonStats& stats);
 
 struct BalloonResult {
   Mesh mesh;                     // closed, manifold, genus 0, outward oriented (mm)

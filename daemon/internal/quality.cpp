@@ -190,6 +190,10 @@ void quality_verdict(const volume::Volume& input, const volume::Volume& smoothed
                                        result.balloon_stats.tissue_level);
     if (result.wall_support >= 0.0f && result.wall_support < kLeastWallSupport)
       why.emplace_back("surface not on the target's wall");
+    // A dark target's image is the echo's amplitude, whose zero is no echo (a bright target's
+    // working image is inverted about its maximum: its levels have no such zero).
+    if (result.target == TargetPolarity::Dark && segment::low_contrast(result.balloon_stats))
+      why.emplace_back("low contrast");
     // At the coarse retry's scale a surface a few voxels inside the wall still sees the wall
     // ahead: the wall test cannot tell it from one on the wall, so the result is never ok.
     if (result.coarse_retry) why.emplace_back("coarse pre-filter");

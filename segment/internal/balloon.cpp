@@ -137,14 +137,12 @@ struct Prelude {
   }
 };
 
-// A crumple is watched for where the stricter cosine is on offer and the seed's level lies below
-// 60 % of the tissue's: nearer, a restart's stricter test stopped a low-contrast balloon's fronts
-// at the cavity's speckle and called the shrunken result ok (docs/stopping.md item 18).
-constexpr float kCrumpleMostLevelRatio = 0.6f;
-
-bool watch_for_crumple(const BalloonOptions& options, const SeedRegion& seed) {
+// A crumple is watched for where the stricter cosine is on offer, and not at a low contrast:
+// there a restart's stricter test stopped the fronts at the cavity's speckle and called the
+// shrunken result ok (docs/stopping.md item 18).
+bool watch_for_crumple(const BalloonOptions& options, const BalloonStats& stats) {
   return options.crumple_self_intersection_cos > options.self_intersection_cos &&
-         seed.level < kCrumpleMostLevelRatio * seed.tissue_level;
+         !low_contrast(stats);
 }
 
 // Inflates `start`; a leak that rolled back is sealed (leak_seal.h) and the balloon from before
@@ -156,7 +154,7 @@ BalloonResult evolve(const Prelude& pre, const BalloonOptions& options, const Ba
   BalloonOptions strict = options;
   strict.self_intersection_cos = options.crumple_self_intersection_cos;
   const BalloonOptions* active = &options;
-  const bool watch = watch_for_crumple(options, pre.seed);
+  const bool watch = watch_for_crumple(options, stats);
   std::optional<BalloonEvolution> evolution;
   auto begin = [&](BalloonMesh from) {
     evolution.emplace(pre.smoothed, pre.sampler, *active, pre.cost, pre.snap, std::move(from),
@@ -196,6 +194,11 @@ BalloonResult evolve(const Prelude& pre, const BalloonOptions& options, const Ba
 }
 
 }  // namespace
+
+bool low_contrast(const BalloonStats& stats) {
+  constexpr float kLowContrastLevelRatio = 0.6f;
+  return stats.seed_level >= kLowContrastLevelRatio * stats.tissue_level;
+}
 
 BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const Vec3f& seed_mm,
                               const BalloonOptions& options, std::stop_token stop) {

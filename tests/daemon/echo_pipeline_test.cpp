@@ -322,5 +322,22 @@ TEST(EchoPipeline, ACrumpledBalloonInflatesAgainAndIsRight) {
   EXPECT_GE(internal::dice(*next.labels, phantom.truth), 0.94);
 }
 
+// Below 0.4 of contrast (the seed region's level 60 % of the tissue's or more) the wall test
+// passes surfaces stopped on speckle or near-field clutter: the 64³ lv at contrast 0.3 came out
+// ok at Dice 0.871, volume −14 % (2026-12-05). It is "low contrast" now; at contrast 0.5 the
+// same phantom stays ok.
+TEST(EchoPipeline, ALowContrastResultIsNeverOk) {
+  const sim::Phantom low = echo_phantom("lv", 0.3f);
+  const PipelineResult r = run_pipeline(low.image, low.seed_mm, PipelineConfig{});
+  ASSERT_TRUE(r.ok) << r.error;
+  EXPECT_FALSE(r.quality_ok);
+  EXPECT_NE(std::find(r.quality_reasons.begin(), r.quality_reasons.end(), "low contrast"),
+            r.quality_reasons.end());
+  const sim::Phantom half = echo_phantom("lv", 0.5f);
+  const PipelineResult h = run_pipeline(half.image, half.seed_mm, PipelineConfig{});
+  ASSERT_TRUE(h.ok) << h.error;
+  EXPECT_TRUE(h.quality_ok);
+}
+
 }  // namespace
 }  // namespace sonomesh::daemon
