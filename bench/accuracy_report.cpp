@@ -107,6 +107,9 @@ json measure(const sim::PhantomSpec& spec, const daemon::RunConfig& config, int 
               {"quality_reasons", result.quality_reasons},
               {"wall_support", result.wall_support},
               {"open_patch", result.open_patch},
+              {"seed_level", result.balloon_stats.seed_level},
+              {"tissue_level", result.balloon_stats.tissue_level},
+              {"seed_sigma", result.balloon_stats.seed_sigma},
               {"stop_rule", result.stop_rule},
               {"second_opinion", result.second_opinion},
               {"stops", {s.boundary, s.curvature, s.self_intersection, s.iteration_limit}}});
