@@ -7,7 +7,8 @@
 //
 // Reports: sustained throughput (processed volumes per second of stream), the fraction skipped,
 // end-to-end latency (received -> mesh written; p50/p95/max from the journal), mean stage times,
-// and the daemon's peak RSS (wait4 ru_maxrss). Targets: keep up with 10 volumes/s, p95 <= 150 ms.
+// the daemon's peak RSS (wait4 ru_maxrss), and each published mesh's Dice against the phantom's
+// truth at its volume's time (mean, min, and mean per start: tracked, warm, cold).
 //
 //   daemon_bench [--size N] [--rate HZ] [--count N] [--phantom NAME] [--realism simple|echo]
 //                [--contrast C] [--sonomeshd PATH] [--probe-sim PATH] [--work DIR]
@@ -33,6 +34,9 @@
 #include <vector>
 
 #include "acquire/protocol.h"
+#include "daemon/internal/metrics.h"
+#include "mesh/mesh.h"
+#include "reconstruct/reconstruct.h"
 #include "sim/phantom_source.h"
 #include "sim/sim.h"
 
@@ -175,9 +179,47 @@ bool run_daemon(const Args& a, const fs::path& work, const fs::path& recording,
   return true;
 }
 
+// How a processed volume started, as the journal says it: tracked, warm (a balloon) or cold.
+std::string start_kind(const nlohmann::json& line) {
+  const bool tracked = line["start_reason"].get<std::string>().rfind("previous surface", 0) == 0;
+  return tracked ? "tracked" : line["start"].get<std::string>();
+}
+
+// Dice of every processed volume's mesh (rasterised on the phantom's grid) against the phantom's
+// truth at that volume's time: the stream's accuracy, which its latency does not show.
+nlohmann::json stream_dice(const sonomesh::sim::PhantomSourceOptions& options,
+                           const fs::path& out) {
+  std::vector<double> all;
+  std::map<std::string, std::vector<double>> by_start;
+  std::ifstream in(out / "journal.jsonl");
+  std::string line;
+  while (std::getline(in, line)) {
+    const auto j = nlohmann::json::parse(line);
+    if (j["status"] != "processed") continue;
+    const sonomesh::mesh::MeshReadResult mesh = sonomesh::mesh::read_ply(out / j["mesh"]);
+    if (!mesh) continue;
+    sonomesh::sim::PhantomSpec spec = options.spec;
+    spec.time_s = static_cast<float>(j["sequence"].get<double>() / options.rate_hz);
+    const sonomesh::sim::Phantom truth = sonomesh::sim::make_phantom(spec);
+    const double d = sonomesh::daemon::internal::dice(
+        sonomesh::reconstruct::rasterize_labels(mesh.mesh, truth.truth), truth.truth);
+    all.push_back(d);
+    by_start[start_kind(j)].push_back(d);
+  }
+  auto mean = [](const std::vector<double>& v) {
+    double sum = 0;
+    for (double x : v) sum += x;
+    return v.empty() ? 0.0 : sum / static_cast<double>(v.size());
+  };
+  nlohmann::json dice = {
+      {"mean", mean(all)}, {"min", quantile(all, 0.0)}, {"measured", all.size()}};
+  for (const auto& [kind, v] : by_start) dice["mean_by_start"][kind] = mean(v);
+  return dice;
+}
+
 // The journal's counts, latencies and stage times, printed as JSON and one summary line.
 void report_journal(const Args& a, const fs::path& work, int genus, double wall_s,
-                    const rusage& usage) {
+                    const rusage& usage, const nlohmann::json& dice) {
   std::map<std::string, int> counts;
   std::vector<double> latency;
   std::vector<double> overhead;  // latency minus the pipeline: waiting, hand-over, writing, fsync
@@ -196,8 +238,7 @@ void report_journal(const Args& a, const fs::path& work, int genus, double wall_
     for (const auto& [stage, ms] : j["timings_ms"].items()) stage_sum[stage] += ms.get<double>();
     genus_ok += j["genus"] == genus;
     quality_ok += j["quality"] == "ok";
-    const bool tracked = j["start_reason"].get<std::string>().rfind("previous surface", 0) == 0;
-    ++starts[tracked ? "tracked" : j["start"].get<std::string>()];
+    ++starts[start_kind(j)];
   }
   const int processed = counts["processed"];
   const double stream_s = a.count / a.rate;
@@ -226,6 +267,7 @@ void report_journal(const Args& a, const fs::path& work, int genus, double wall_
   nlohmann::json stages = nlohmann::json::object();
   for (const auto& [stage, sum] : stage_sum) stages[stage] = processed ? sum / processed : 0.0;
   report["mean_stage_ms"] = stages;
+  report["dice"] = dice;
   std::cout << report.dump(2) << "\n";
   // Issue 17's targets: at 10 volumes/s (or slower) every volume and p95 <= 50 ms; faster, 95 %
   // of them and p95 <= 80 ms; peak RSS <= 200 MB either way.
@@ -236,10 +278,11 @@ void report_journal(const Args& a, const fs::path& work, int genus, double wall_
   std::printf(
       "daemon_bench %d^3 at %.0f volumes/s: processed %d/%d (%.1f/s), skipped %d, "
       "latency p50 %.0f ms p95 %.0f ms (daemon overhead p50 %.0f ms), peak RSS %.0f MB, "
-      "genus right %d, quality ok %d -> %s\n",
+      "genus right %d, quality ok %d, Dice mean %.4f min %.4f -> %s\n",
       a.size, a.rate, processed, a.count, processed / stream_s, counts["skipped"],
       quantile(latency, 0.5), quantile(latency, 0.95), quantile(overhead, 0.5),
-      usage.ru_maxrss / 1024.0, genus_ok, quality_ok, met ? "targets met" : "targets NOT met");
+      usage.ru_maxrss / 1024.0, genus_ok, quality_ok, dice["mean"].get<double>(),
+      dice["min"].get<double>(), met ? "targets met" : "targets NOT met");
   if (!a.json_out.empty()) std::ofstream(a.json_out) << report.dump(2) << "\n";
 }
 
@@ -263,6 +306,6 @@ int main(int argc, char** argv) {
   double wall_s = 0;
   rusage usage{};
   if (!run_daemon(a, work, recording, first.seed_mm, wall_s, usage)) return 1;
-  report_journal(a, work, first.genus, wall_s, usage);
+  report_journal(a, work, first.genus, wall_s, usage, stream_dice(options, work / "out"));
   return 0;
 }
