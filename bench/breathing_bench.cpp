@@ -2,7 +2,8 @@
 // reused buffers (as the daemon's worker runs it): per volume the reconstruction grid, the FFTW
 // plans made for it, the reconstruct stage's time, genus and Dice against the truth.
 //   breathing_bench [--phantom cyst-needle] [--size 128] [--spacing 0.4] [--volumes 40]
-//                   [--rate 10] [--warm [--track [--chain 10]]] [--quiet]
+//                   [--rate 10] [--warm [--track [--chain 10]]] [--realism echo]
+//                   [--contrast C] [--quiet]
 // --warm: each volume's balloon starts inside the previous one's (daemon::WarmStart, 3 voxels in,
 // as the daemon's worker with a still target) and the seed is the previous deepest point, as the
 // daemon's worker runs it (issue 17).
@@ -30,6 +31,8 @@ struct Args {
   std::string phantom = "cyst-needle";
   int size_vox = 128, volumes = 40;
   float spacing_mm = 0.4f, rate_hz = 10.0f;
+  float contrast = -1.0f;          // < 0: the phantom's own
+  std::string realism = "simple";  // echo: sim::with_echo_realism
   bool quiet = false, warm_start = false, track = false;
   int chain = daemon::PipelineConfig{}.track_max_chain;
 };
@@ -108,6 +111,17 @@ void print_summary(const Args& a, const Tally& t, std::size_t plans) {
       t.tracked_total_ms.size(), pct(t.tracked_total_ms, 0.5), pct(t.tracked_total_ms, 0.9));
 }
 
+// The phantom at time `time_s` of the stream.
+sim::PhantomSpec spec_at(const Args& a, float time_s) {
+  sim::PhantomSpec spec{.phantom = a.phantom,
+                        .size_vox = a.size_vox,
+                        .spacing_mm = volume::Vec3f::Constant(a.spacing_mm),
+                        .time_s = time_s};
+  if (a.realism == "echo") spec = sim::with_echo_realism(spec);
+  if (a.contrast >= 0.0f) spec.contrast = a.contrast;
+  return spec;
+}
+
 // The stream, volume by volume, as the daemon's worker runs it: buffers reused and, with --warm,
 // the previous balloon (3 voxels in, its genus checked) and deepest point carried forward.
 Tally run_stream(const Args& a) {
@@ -118,10 +132,7 @@ Tally run_stream(const Args& a) {
   std::optional<daemon::WarmStart> warm;
   std::optional<volume::Vec3f> tracked_mm;
   for (int i = 0; i < a.volumes; ++i) {
-    const sim::Phantom p = sim::make_phantom({.phantom = a.phantom,
-                                              .size_vox = a.size_vox,
-                                              .spacing_mm = volume::Vec3f::Constant(a.spacing_mm),
-                                              .time_s = float(i) / a.rate_hz});
+    const sim::Phantom p = sim::make_phantom(spec_at(a, float(i) / a.rate_hz));
     const std::size_t plans0 = reconstruct::internal::fft_plan_stats().plans_created;
     const daemon::PipelineResult r = daemon::run_pipeline(p.image, tracked_mm.value_or(p.seed_mm),
                                                           config, buffers, warm ? &*warm : nullptr);
@@ -157,6 +168,9 @@ int main(int argc, char** argv) {
   app.add_option("--volumes", a.volumes)->check(CLI::Range(1, 1000));
   app.add_option("--rate", a.rate_hz)->check(CLI::PositiveNumber);
   app.add_flag("--quiet", a.quiet, "summary only");
+  app.add_option("--realism", a.realism, "simple or echo (sim::with_echo_realism)")
+      ->check(CLI::IsMember({"simple", "echo"}));
+  app.add_option("--contrast", a.contrast, "target contrast (default: the phantom's)");
   app.add_flag("--warm", a.warm_start, "warm start from the previous volume's balloon");
   app.add_flag("--track", a.track, "with --warm: track the previous surface where it is safe");
   app.add_option("--chain", a.chain, "with --track: volumes in a row tracked at most")

@@ -191,6 +191,7 @@ nlohmann::json stream_dice(const sonomesh::sim::PhantomSourceOptions& options,
                            const fs::path& out) {
   std::vector<double> all;
   std::map<std::string, std::vector<double>> by_start;
+  nlohmann::json per_volume = nlohmann::json::array();
   std::ifstream in(out / "journal.jsonl");
   std::string line;
   while (std::getline(in, line)) {
@@ -205,6 +206,7 @@ nlohmann::json stream_dice(const sonomesh::sim::PhantomSourceOptions& options,
         sonomesh::reconstruct::rasterize_labels(mesh.mesh, truth.truth), truth.truth);
     all.push_back(d);
     by_start[start_kind(j)].push_back(d);
+    per_volume.push_back({{"sequence", j["sequence"]}, {"start", start_kind(j)}, {"dice", d}});
   }
   auto mean = [](const std::vector<double>& v) {
     double sum = 0;
@@ -214,6 +216,7 @@ nlohmann::json stream_dice(const sonomesh::sim::PhantomSourceOptions& options,
   nlohmann::json dice = {
       {"mean", mean(all)}, {"min", quantile(all, 0.0)}, {"measured", all.size()}};
   for (const auto& [kind, v] : by_start) dice["mean_by_start"][kind] = mean(v);
+  dice["volumes"] = std::move(per_volume);
   return dice;
 }
 
