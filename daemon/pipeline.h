@@ -188,6 +188,9 @@ struct PipelineResult {
   /// A bright structure the surface had passed over (a needle) was opened, its walls added to
   /// the reconstruction's samples (internal::open_bright_inside).
   bool bright_inside_opened = false;
+  /// ...and the genus did not rise: its walls opened no tunnel (a needle too thin for the grid at
+  /// this smoothing, or clutter across a cavity). The verdict says "bright structure inside".
+  bool bright_inside_left = false;
   /// A cold start that ran coarse to fine (PipelineConfig::coarse_start), the parts' times (all
   /// within timings.balloon_ms), and why the plain cold start ran instead when it was tried.
   struct CoarseStart {

@@ -241,9 +241,13 @@ std::string surface_stage(const volume::Volume& input, const volume::Volume& smo
            " oriented points after the opening";
   const reconstruct::PoissonOptions poisson = internal::poisson_options(config, input);
   surface = reconstruct::reconstruct_surface(samples, seed_mm, poisson);
-  if (!surface.mesh.triangles.empty())
+  if (!surface.mesh.triangles.empty()) {
+    const int genus_before = surface.topology.genus;
     result.bright_inside_opened = internal::open_bright_inside(smoothed, samples, seed_mm, poisson,
                                                                result.balloon_stats, surface);
+    result.bright_inside_left =
+        result.bright_inside_opened && surface.topology.genus <= genus_before;
+  }
   result.timings.reconstruct_ms = surface.reconstruct_ms;
   // A warm result of the previous result's genus has no handle to explain.
   if (!(known_genus && surface.topology.genus <= *known_genus)) {

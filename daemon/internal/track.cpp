@@ -182,6 +182,7 @@ PipelineResult carried(const PipelineResult& previous, const PipelineResult& smo
   r.coarse_start = {};
   // (no reconstruction on this volume)
   r.dark_tunnels_closed = r.tissue_columns_filled = r.bright_inside_opened = false;
+  r.bright_inside_left = false;
   r.warm_start = true;
   r.start_reason = "previous surface";
   r.tracking.chain = previous.tracking.chain + 1;

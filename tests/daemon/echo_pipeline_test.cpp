@@ -339,5 +339,23 @@ TEST(EchoPipeline, ALowContrastResultIsNeverOk) {
   EXPECT_TRUE(h.quality_ok);
 }
 
+// The 64³ cyst-needle at contrast 0.7 seeded 0.45 of the radius along +z: the balloon passes
+// over the needle (0.6 mm across), its walls are added to the samples, and the reconstruction
+// still closes the tunnel: genus 0, called ok before (Dice 0.931, 2026-12-05). It is "bright
+// structure inside" now.
+TEST(EchoPipeline, ANeedleTheReconstructionCouldNotOpenIsFlagged) {
+  const sim::Phantom phantom = echo_phantom("cyst-needle", 0.7f);
+  const float radius_mm = static_cast<float>(internal::equivalent_radius_mm(phantom.truth));
+  const Vec3f seed_mm = phantom.seed_mm + Vec3f(0.0f, 0.0f, 0.45f * radius_mm);
+  const PipelineResult r = run_pipeline(phantom.image, seed_mm, PipelineConfig{});
+  ASSERT_TRUE(r.ok) << r.error;
+  ASSERT_EQ(r.topology.genus, 0);  // (the fault this flags; a fix makes this test moot)
+  EXPECT_TRUE(r.bright_inside_opened && r.bright_inside_left);
+  EXPECT_FALSE(r.quality_ok);
+  EXPECT_NE(
+      std::find(r.quality_reasons.begin(), r.quality_reasons.end(), "bright structure inside"),
+      r.quality_reasons.end());
+}
+
 }  // namespace
 }  // namespace sonomesh::daemon
