@@ -190,7 +190,8 @@ long deep_on_a_line(const volume::Volume& smoothed, const InsideRegion& region,
     long near = 0;
     for (const Vec3f& p : deep) {
       const Vec3f r = p - a;
-      near += r.squaredNorm() - std::pow(r.dot(u), 2.0f) <= kNearVox2;
+      const float along = r.dot(u);
+      near += r.squaredNorm() - along * along <= kNearVox2;
     }
     most = std::max(most, near);
   }

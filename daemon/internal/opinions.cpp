@@ -101,7 +101,8 @@ std::string segment_opinions(const volume::Volume& input, const Vec3f& seed_mm,
   const PipelineResult smoothed_only = result;
   const bool switchable =
       config.second_opinion_level_stop > 0.0f && !(config.balloon.level_stop_fraction > 0.0f);
-  // (Ψ_cost first after a stale chain of the level stop's stalled on speckle at contrast 0.5.)
+  // A cold start after a chain of the level stop's runs it first too: Ψ_cost first stalled on the
+  // speckle at contrast 0.5, and the level stop then ran as the second opinion.
   const bool level_first = switchable && ((warm && warm->level_stop) ||
                                           (known_target && known_target->stop_rule == "level"));
   std::string error = segment_stages(input, seed_mm, with_level_stop(config, level_first), buffers,

@@ -21,9 +21,9 @@ using Judge = std::function<void(PipelineResult&, std::string)>;
 /// one before it with the same rule: when it is suspect, this volume is the odd one, and the next
 /// starts cold and may get the second opinion, so a live stream does not stall on one. With
 /// `known_target` (the last result, when this cold start follows tracked volumes of this
-/// target) an ok result is not asked
-/// again for looking down a tube, and its rule runs first, as a warm start's does. Sets `judged`
-/// when `result` has its verdict. Returns the error, empty if there is a surface.
+/// target) an ok result is not asked again for looking down a tube, and its rule runs first, as
+/// a warm start's does. Sets `judged` when `result` has its verdict. Returns the error, empty if
+/// there is a surface.
 std::string segment_opinions(const volume::Volume& input, const Vec3f& seed_mm,
                              const PipelineConfig& config, PipelineBuffers& buffers,
                              const WarmStart* warm, const std::stop_token& stop, const Judge& judge,

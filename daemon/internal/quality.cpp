@@ -190,7 +190,8 @@ void quality_verdict(const volume::Volume& input, const volume::Volume& smoothed
                                        result.balloon_stats.tissue_level);
     if (result.wall_support >= 0.0f && result.wall_support < kLeastWallSupport)
       why.emplace_back("surface not on the target's wall");
-    // A needle across the target that the reconstruction could not open: a handle is missing.
+    // A bright structure across the target whose walls opened no tunnel: a needle's handle is
+    // missing, or the surface stopped at clutter across the cavity.
     if (result.bright_inside_left) why.emplace_back("bright structure inside");
     // A dark target's image is the echo's amplitude, whose zero is no echo (a bright target's
     // working image is inverted about its maximum: its levels have no such zero).

@@ -120,6 +120,7 @@ void BalloonEvolution::run(std::stop_token stop) {
     }
   }
   stats_.iterations = std::min(it, options_.max_iterations);
+  if (crumpled_) return;  // (inflated again from its start: this balloon is not taken)
   if (!all_stopped_ && !stats_.stalled && !stats_.cancelled && !stats_.leaked)
     for (auto& r : a_.reason)
       if (r == StopReason::Moving) r = StopReason::IterationLimit;

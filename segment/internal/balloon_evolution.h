@@ -29,13 +29,12 @@ BalloonMesh start_sphere(const Vec3f& seed_mm, float radius_mm);
 class BalloonEvolution {
  public:
   /// S^0: `start` (closed, genus 0, outward: start_sphere, or the warm start's mesh,
-  /// warm_start.h), its vertex
-  /// states as given. A_t starts empty: the previous volume's swept set is not carried (a
-  /// withdrawn needle's tunnel must not survive in it), and the start mesh's interior is not
-  /// marked either, because the self-intersection test needs the normal of the front that swept
-  /// a voxel, which an interior voxel has not got; the start surface itself marks its band with
-  /// its normals here, so two sheets that meet again in the new volume see each other.
-  /// `smoothed` (Float32), `sampler` and `options` must outlive the object; `stats` receives
+  /// warm_start.h), its vertex states as given. A_t starts empty: the previous volume's swept set
+  /// is not carried (a withdrawn needle's tunnel must not survive in it), and the start mesh's
+  /// interior is not marked either, because the self-intersection test needs the normal of the
+  /// front that swept a voxel, which an interior voxel has not got; the start surface itself marks
+  /// its band with its normals here, so two sheets that meet again in the new volume see each
+  /// other. `smoothed` (Float32), `sampler` and `options` must outlive the object; `stats` receives
   /// the counters and phase times.
   BalloonEvolution(const volume::Volume& smoothed, const ImageSampler& sampler,
                    const BalloonOptions& options, const CostRule& cost, const WallSnap& snap,
