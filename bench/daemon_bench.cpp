@@ -198,7 +198,11 @@ nlohmann::json stream_dice(const sonomesh::sim::PhantomSourceOptions& options,
     const auto j = nlohmann::json::parse(line);
     if (j["status"] != "processed") continue;
     const sonomesh::mesh::MeshReadResult mesh = sonomesh::mesh::read_ply(out / j["mesh"]);
-    if (!mesh) continue;
+    if (!mesh) {  // (counted out of `measured`, and said)
+      std::fprintf(stderr, "daemon_bench: no Dice for %s: %s\n",
+                   j["mesh"].get<std::string>().c_str(), mesh.error->message.c_str());
+      continue;
+    }
     sonomesh::sim::PhantomSpec spec = options.spec;
     spec.time_s = static_cast<float>(j["sequence"].get<double>() / options.rate_hz);
     const sonomesh::sim::Phantom truth = sonomesh::sim::make_phantom(spec);

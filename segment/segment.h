@@ -159,6 +159,10 @@ struct BalloonStats {
   std::size_t front_grid_bytes = 0;  // memory of A_t's sparse grid
 };
 
+/// `options` with the stricter self-intersection test a crumpled balloon inflates again with
+/// (crumple_self_intersection_cos, where it is the stricter): for a stream whose balloon crumpled.
+BalloonOptions after_crumple(const BalloonOptions& options);
+
 /// Whether the seed region shows a low contrast: its level at 60 % of the tissue level or more
 /// (under 0.4 of contrast, on an image whose zero is no echo). There a wall half the contrast
 /// high is within the speckle's and the clutter's reach: the stricter self-intersection test

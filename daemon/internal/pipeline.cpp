@@ -366,13 +366,10 @@ std::string segment_stages(const volume::Volume& input, const Vec3f& seed_mm,
 
 namespace {
 
-// A stream whose balloon crumpled: the balloons start with the stricter self-intersection test,
-// rather than crumple first and inflate twice.
-PipelineConfig after_crumple(const PipelineConfig& config) {
-  PipelineConfig strict = config;
-  segment::BalloonOptions& b = strict.balloon;
-  b.self_intersection_cos = std::max(b.self_intersection_cos, b.crumple_self_intersection_cos);
-  return strict;
+// A stream whose balloon crumpled starts its balloons strict, not to crumple and inflate twice.
+PipelineConfig after_crumple(PipelineConfig config) {
+  config.balloon = segment::after_crumple(config.balloon);
+  return config;
 }
 
 PipelineResult run_volume(const volume::Volume& input, const Vec3f& seed_mm,

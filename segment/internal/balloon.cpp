@@ -147,12 +147,11 @@ bool watch_for_crumple(const BalloonOptions& options, const BalloonStats& stats)
 
 // Inflates `start`; a leak that rolled back is sealed (leak_seal.h) and the balloon from before
 // it inflated again, up to options.max_leak_seals times; a crumpled balloon inflates once more
-// from `start` with the stricter self-intersection test.
-BalloonResult evolve(const Prelude& pre, const BalloonOptions& options, const BalloonMesh& start,
+// from `start` with the stricter self-intersection test (kept only while it may crumple).
+BalloonResult evolve(const Prelude& pre, const BalloonOptions& options, BalloonMesh start,
                      BalloonResult& result, const std::stop_token& stop) {
   BalloonStats& stats = result.stats;
-  BalloonOptions strict = options;
-  strict.self_intersection_cos = options.crumple_self_intersection_cos;
+  const BalloonOptions strict = after_crumple(options);
   const BalloonOptions* active = &options;
   const bool watch = watch_for_crumple(options, stats);
   std::optional<BalloonEvolution> evolution;
@@ -161,7 +160,10 @@ BalloonResult evolve(const Prelude& pre, const BalloonOptions& options, const Ba
                       stats);
     if (watch && active == &options) evolution->watch_for_crumple();
   };
-  begin(start);
+  if (watch)
+    begin(start);  // (a copy: a crumple inflates again from it)
+  else
+    begin(std::move(start));
   int iterations = 0;
   for (;;) {
     evolution->run(stop);
@@ -169,7 +171,7 @@ BalloonResult evolve(const Prelude& pre, const BalloonOptions& options, const Ba
     if (evolution->crumpled()) {
       ++stats.crumple_restarts;
       active = &strict;
-      begin(start);
+      begin(std::move(start));  // (the strict balloon is not watched: at most one restart)
       continue;
     }
     if (!stats.leaked || !evolution->rolled_back() || stats.leak_seals >= options.max_leak_seals)
@@ -194,6 +196,13 @@ BalloonResult evolve(const Prelude& pre, const BalloonOptions& options, const Ba
 }
 
 }  // namespace
+
+BalloonOptions after_crumple(const BalloonOptions& options) {
+  BalloonOptions strict = options;
+  strict.self_intersection_cos =
+      std::max(options.self_intersection_cos, options.crumple_self_intersection_cos);
+  return strict;
+}
 
 bool low_contrast(const BalloonStats& stats) {
   constexpr float kLowContrastLevelRatio = 0.6f;
@@ -264,7 +273,7 @@ BalloonResult inflate_balloon_from(const volume::Volume& smoothed_in, const Mesh
          .wall_level = wall_level},
         box, options.threads);
   stats.start_mesh_ms = ms_since(t_start);
-  return evolve(pre, options, start, result, stop);
+  return evolve(pre, options, std::move(start), result, stop);
 }
 
 BalloonResult inflate_balloon(const volume::Volume& image, float sigma_mm, const Vec3f& seed_mm,
