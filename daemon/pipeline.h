@@ -162,16 +162,13 @@ struct PipelineResult {
   /// Surface tracking (PipelineConfig::track_max_chain): `chain` volumes in a row were tracked,
   /// this one included (0: the balloon ran); the open patch of the chain's first result, which
   /// the tracked ones are checked against; why tracking was refused on this volume (empty: not
-  /// refused, or not asked); whether the balloon started cold because the warm start's
-  /// balloon was a tracked chain's first, too old to start from; and whether the tracked surface
-  /// begins to cross itself (its inside by ray parity and its enclosed volume part), which the
-  /// daemon remakes from its own samples after publishing it, off the volume's latency.
+  /// refused, or not asked); and whether the balloon started cold because the warm start's
+  /// balloon was a tracked chain's first, too old to start from.
   struct Tracking {
     int chain = 0;
     float open_patch_base = -1.0f;
     std::string refused;
     bool balloon_stale = false;
-    bool crossing = false;
   } tracking;
   /// The balloon's stop rule behind this result: "cost" (Ψ_cost, the paper's) or "level" (the
   /// level stop, as configured or as the second opinion); and whether the second opinion ran.

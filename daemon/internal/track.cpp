@@ -22,11 +22,11 @@ constexpr float kSettledVox = 0.25f;
 constexpr int kMostFits = 3;
 // The surface's inside by ray parity (its labels) may differ from the volume it encloses by this
 // share: more and it crosses itself (a fit pushed one sheet through another), which the signed
-// volume hides and the labels do not; it is then reconstructed from its own samples. Beyond the
-// second share it begins to: published as it is, and marked (Tracking::crossing) to be remade
-// after it. Along a chain the share grows by 0.1-0.5 % a volume, at times 1.2-1.8 % at once.
+// volume hides and the labels do not; it is then reconstructed from its own samples before it is
+// published. A surface remade after publishing (remake_tracked) is kept within the second share.
+// Along a chain of fits alone the share grew by 0.1-0.5 % a volume, at times 1.2-1.8 % at once.
 constexpr double kMostInsideMismatch = 0.0075;
-constexpr double kCrossingInsideMismatch = 0.003;
+constexpr double kRemadeInsideMismatch = 0.003;
 // How much larger the open patch may grow over the chain's first result: a withdrawn needle's
 // tunnel adds 6.6-7.5 % of a cyst's area; a breathing 128³ cyst-needle's patch by the needle
 // varies by up to 3 % (0.6-3.6 %).
@@ -150,9 +150,7 @@ std::string label_consistently(const volume::Volume& input, const volume::Volume
                                PipelineResult& tracked) {
   tracked.labels = reconstruct::rasterize_labels(tracked.mesh, input);
   double mismatch = inside_mismatch(*tracked.labels, tracked.enclosed_volume_ml);
-  tracked.tracking.crossing = std::abs(mismatch) > kCrossingInsideMismatch;
   if (folded.empty() && std::abs(mismatch) <= kMostInsideMismatch) return "";
-  tracked.tracking.crossing = false;  // (remade now)
   const auto t = Clock::now();
   const std::optional<reconstruct::SurfaceResult> again =
       remade(input, smoothed, tracked.mesh, previous, seed_mm, config);
@@ -245,16 +243,15 @@ std::string track_surface(const volume::Volume& input, const Vec3f& seed_mm,
   return "";
 }
 
-bool remake_crossing(const volume::Volume& input, const volume::Volume& smoothed,
-                     const Vec3f& seed_mm, const PipelineConfig& config, PipelineResult& result) {
+bool remake_tracked(const volume::Volume& input, const volume::Volume& smoothed,
+                    const Vec3f& seed_mm, const PipelineConfig& config, PipelineResult& result) {
   const std::optional<reconstruct::SurfaceResult> again =
       remade(input, smoothed, result.mesh, result, seed_mm, config);
   if (!again) return false;
   take_surface(input, *again, result);
   const double mismatch = inside_mismatch(*result.labels, result.enclosed_volume_ml);
   result.labels.reset();
-  result.tracking.crossing = false;
-  return std::abs(mismatch) <= kCrossingInsideMismatch;
+  return std::abs(mismatch) <= kRemadeInsideMismatch;
 }
 
 void measure_tracking_base(const PipelineBuffers& buffers, int threads, PipelineResult& result) {

@@ -24,12 +24,14 @@ std::string track_surface(const volume::Volume& input, const Vec3f& seed_mm,
                           const PipelineResult& previous, const Judge& judge,
                           PipelineResult& result);
 
-/// Remakes a tracked `result` whose surface begins to cross itself (Tracking::crossing) as
-/// track_surface remakes one that crossed: its samples through Kazhdan's reconstruction, then the
-/// wall fit on `smoothed` (its volume's). Returns whether `result` now holds a surface that kept
-/// the genus and the seed and agrees with its labels (else it is not to be used).
-bool remake_crossing(const volume::Volume& input, const volume::Volume& smoothed,
-                     const Vec3f& seed_mm, const PipelineConfig& config, PipelineResult& result);
+/// Remakes a tracked `result`'s surface as track_surface remakes one that crossed itself: its
+/// samples through Kazhdan's reconstruction, then the wall fit on `smoothed` (its volume's). The
+/// daemon does this to every tracked result after publishing it, for the next volume to track
+/// from: each fit follows a few speckle grains, and a chain of fits piles them up where the
+/// reconstruction smooths them away. Returns whether `result` now holds a surface that kept the
+/// genus and the seed and agrees with its labels (else it is not to be used).
+bool remake_tracked(const volume::Volume& input, const volume::Volume& smoothed,
+                    const Vec3f& seed_mm, const PipelineConfig& config, PipelineResult& result);
 
 /// Sets `result.tracking`'s base on a result the balloon made, for the chain it may start: its
 /// open patch (measured when it was not).

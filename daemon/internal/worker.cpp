@@ -283,19 +283,19 @@ void Worker::process(QueuedVolume item, PipelineBuffers& buffers, int lanes) {
   refresh_anchor(seq, *kept_input, *start, seed_mm, *refresh_from, buffers);
 }
 
-// A tracked surface that begins to cross itself (Tracking::crossing) is remade from its own
-// samples after it was published, not before: the remaking took 15-80 ms of a volume's latency
-// in the daemon. Its result becomes the anchor the next volumes track from, where no newer
-// result replaced this one meanwhile; one begun before from the crossing anchor is not kept.
+// Every tracked surface is remade from its own samples (internal::remake_tracked) after it was
+// published, not before: the remaking takes 10-25 ms, and a volume's latency does not wait for
+// it. Its result becomes the anchor the next volumes track from, where no newer result replaced
+// this one meanwhile; one begun before from the unremade anchor is not kept.
 void Worker::remake_anchor(std::uint64_t sequence, const volume::Volume& input, const Start& start,
                            const Vec3f& seed_mm, const PipelineResult& tracked,
                            const PipelineBuffers& buffers) {
   PipelineResult mended = tracked;
   bool ok = false;
   try {
-    ok = internal::remake_crossing(input, buffers.smoothed, seed_mm, start.config.pipeline, mended);
+    ok = internal::remake_tracked(input, buffers.smoothed, seed_mm, start.config.pipeline, mended);
   } catch (const std::exception& e) {
-    spdlog::warn("sequence {}: the crossing surface was not remade: {}", sequence, e.what());
+    spdlog::warn("sequence {}: the tracked surface was not remade: {}", sequence, e.what());
   }
   std::lock_guard lock(state_mutex_);
   refresh_busy_ = false;
@@ -347,8 +347,7 @@ void Worker::refresh_anchor(std::uint64_t sequence, const volume::Volume& input,
 // A result older than the state's (the other lane's newer volume finished first) is still
 // checked against it for a genus change, but does not set it back, nor does one begun before the
 // anchor was refreshed or remade. Returns the warm start kept when this lane is to refresh the
-// anchor near the chain's length (refresh_anchor) or remake a surface that begins to cross itself
-// (remake_anchor).
+// anchor near the chain's length (refresh_anchor) or remake a tracked surface (remake_anchor).
 std::optional<WarmStart> Worker::end_volume(std::uint64_t sequence, const volume::Volume& input,
                                             const Start& start, PipelineResult& result) {
   std::lock_guard lock(state_mutex_);
@@ -369,8 +368,7 @@ std::optional<WarmStart> Worker::end_volume(std::uint64_t sequence, const volume
   seeds_.on_result(deepest, override_waiting());
   if (start.anchor != anchor_) return std::nullopt;
   keep_for_warm_start(input, result);
-  if (!previous_ || refresh_busy_ || !result.quality_ok || result.tracking.chain == 0 ||
-      (result.tracking.chain < refresh_chain(start.config.pipeline) && !result.tracking.crossing))
+  if (!previous_ || refresh_busy_ || !result.quality_ok || result.tracking.chain == 0)
     return std::nullopt;
   refresh_busy_ = true;
   return previous_->warm;

@@ -29,7 +29,8 @@ sim::Phantom frame(float time_s, bool needle = true, float needle_reach = 1.0f) 
 }
 
 // A stream as the worker runs it: the seed is the last result's deepest point, the warm start
-// its surface, tracked where the checks allow, else its balloon's interior eroded by 3 voxels.
+// its surface, tracked where the checks allow (a tracked surface remade from its samples, as the
+// worker remakes it after publishing), else its balloon's interior eroded by 3 voxels.
 class Stream {
  public:
   PipelineResult next(const sim::Phantom& p) {
@@ -43,6 +44,10 @@ class Stream {
     if (r.ok) {
       previous_ = r;
       seed_ = r.deepest_interior_mm;
+      PipelineResult mended = r;
+      if (r.tracking.chain > 0 &&
+          internal::remake_tracked(p.image, buffers_.smoothed, seed, PipelineConfig{}, mended))
+        previous_ = std::move(mended);
     }
     return r;
   }
@@ -180,9 +185,9 @@ TEST(WarmStartPipeline, AJumpedTargetFallsBackToAColdStart) {
   EXPECT_GE(internal::dice(*r.labels, truth), 0.95);
 }
 
-// A tracked surface that begins to cross itself is remade from its own samples after it was
-// published (the daemon's worker, remake_anchor). Every tracked result of a breathing stream,
-// remade so, keeps the seed and the genus, agrees with its labels, and lies as close to the truth.
+// Every tracked surface is remade from its own samples after it was published (the daemon's
+// worker, remake_anchor). Every tracked result of a breathing stream, remade so, keeps the seed
+// and the genus, agrees with its labels, and lies as close to the truth.
 TEST(WarmStartPipeline, ATrackedSurfaceRemadeKeepsItsGenusAndWall) {
   Stream stream;
   int remade = 0;
@@ -192,11 +197,10 @@ TEST(WarmStartPipeline, ATrackedSurfaceRemadeKeepsItsGenusAndWall) {
     ASSERT_TRUE(tracked.ok) << "volume " << i << ": " << tracked.error;
     if (tracked.tracking.chain == 0) continue;
     PipelineResult again = tracked;
-    ASSERT_TRUE(internal::remake_crossing(p.image, stream.smoothed(), stream.seed_used(),
-                                          PipelineConfig{}, again))
+    ASSERT_TRUE(internal::remake_tracked(p.image, stream.smoothed(), stream.seed_used(),
+                                         PipelineConfig{}, again))
         << "volume " << i;
     ++remade;
-    EXPECT_FALSE(again.tracking.crossing);
     EXPECT_FALSE(again.labels.has_value());  // (the anchor keeps none)
     EXPECT_EQ(again.topology.genus, p.genus) << "volume " << i;
     const volume::Volume labels = reconstruct::rasterize_labels(again.mesh, p.image);
@@ -206,6 +210,34 @@ TEST(WarmStartPipeline, ATrackedSurfaceRemadeKeepsItsGenusAndWall) {
     EXPECT_GE(after, before - 0.005) << "volume " << i;
   }
   EXPECT_GE(remade, 2);  // (4 of 5 tracked when this was written)
+}
+
+// At echo contrast 0.5 each fit of a tracked surface follows a few speckle grains, and fitted
+// again from there, volume after volume, a chain drifted off the wall (Dice 0.940 to 0.923 over
+// six volumes). Remade from its samples before the next volume tracks from it, the chain stays
+// on the wall: every volume within 0.01 of the chain's first, the balloon's.
+TEST(WarmStartPipeline, AnEchoChainAtContrastHalfStaysOnTheWall) {
+  Stream stream;
+  std::optional<double> first;
+  int tracked = 0;
+  for (int i = 0; i < 8; ++i) {
+    sim::PhantomSpec spec = sim::with_echo_realism({.phantom = "cyst-needle",
+                                                    .size_vox = kSize,
+                                                    .spacing_mm = Vec3f::Constant(kSpacingMm),
+                                                    .time_s = 0.1f * static_cast<float>(i)});
+    spec.contrast = 0.5f;
+    const sim::Phantom p = sim::make_phantom(spec);
+    const PipelineResult r = stream.next(p);
+    ASSERT_TRUE(r.ok) << "volume " << i << ": " << r.error;
+    const double dice = internal::dice(*r.labels, p.truth);
+    std::printf("volume %d chain %d genus %d Dice %.4f\n", i, r.tracking.chain, r.topology.genus,
+                dice);
+    if (!first) first = dice;
+    tracked += r.tracking.chain > 0;
+    EXPECT_EQ(r.topology.genus, p.genus) << "volume " << i;
+    EXPECT_GE(dice, *first - 0.01) << "volume " << i;
+  }
+  EXPECT_GE(tracked, 6);  // (7 of 7 when this was written)
 }
 
 }  // namespace
