@@ -93,6 +93,11 @@ Mesh component_enclosing(const Mesh& mesh, const Vec3f& seed_mm, bool* seed_encl
 // ---------------------------------------------------------------------------------------------
 // Normals.
 
+/// Each vertex's unit normal, equation (2)'s: the normalised sum of the unit normals of the
+/// triangles around it (zero where they are all degenerate or cancel).
+/// @throws std::invalid_argument on out-of-range indices.
+std::vector<Vec3f> vertex_normals(const Mesh& mesh);
+
 /// Vertex samples of a closed mesh: outward unit normals (the normalised sum of the unit normals
 /// of the adjacent triangles, method.md eq. 2) and one-third-area weights.
 /// @throws std::invalid_argument if a triangle indexes a vertex that does not exist.

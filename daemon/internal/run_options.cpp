@@ -214,6 +214,7 @@ std::vector<OptionSpec> pipeline_options() {
                   "second pass length", REF(pipeline.reinflate_pass.max_iterations)));
   o.push_back(flag("pipeline", "wall_fit", "vertices to the surface-averaged wall crossing",
                    REF(pipeline.wall_fit)));
+  o.push_back(flag("pipeline", "resurface", "rebuild the fitted surface", REF(pipeline.resurface)));
   o.push_back(flag("pipeline", "cell_from_voxel", "true: poisson.cell_mm = the finest spacing",
                    REF(pipeline.cell_from_voxel)));
   o.push_back(num("pipeline", "second_opinion_level_stop", "", closed(0, 0.99),

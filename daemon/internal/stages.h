@@ -4,6 +4,7 @@
 /// and the coarse retry (opinions.h), which run them again, and surface tracking (track.h).
 
 #include <cstdint>
+#include <optional>
 #include <stop_token>
 #include <string>
 #include <vector>
@@ -30,6 +31,23 @@ void smooth_again(const volume::Volume& input, const PipelineResult& first, floa
 /// when `config.cell_from_voxel`.
 reconstruct::PoissonOptions poisson_options(const PipelineConfig& config,
                                             const volume::Volume& input);
+
+/// `surface` (closed, of `genus`) made again from its own oriented samples by Kazhdan's
+/// reconstruction, on cells `first_cells` times the configured ones, then on those where that
+/// lost the genus: unset where both lost the seed, the genus or the one closed manifold
+/// component. Its topology's volume is measured.
+std::optional<reconstruct::SurfaceResult> resurfaced(const volume::Volume& input,
+                                                     const segment::Mesh& surface, int genus,
+                                                     const Vec3f& seed_mm,
+                                                     const PipelineConfig& config,
+                                                     float first_cells);
+
+/// Beyond the paper, after the wall fit (PipelineConfig::resurface): the fitted surface
+/// `resurfaced` on the configured cells, the first reconstruction's (coarser ones took a thin
+/// tube's wall in), kept where that holds (PipelineResult::resurfaced); its time is the
+/// reinflate stage's.
+void resurface_stage(const volume::Volume& input, const Vec3f& seed_mm,
+                     const PipelineConfig& config, PipelineResult& result);
 
 /// §1-5 and the second pass, after the smoothing: the balloon (warm, or cold), the surface, the
 /// reinflation. Returns the error, empty if there is a surface.

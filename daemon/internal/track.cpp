@@ -106,29 +106,22 @@ double folded_share(const segment::Mesh& before, const segment::Mesh& after) {
   return total > 0.0 ? folded / total : 0.0;
 }
 
-// A surface a fit pushed through itself, made one surface again: its oriented samples through
-// Kazhdan's reconstruction, as the balloon's, and the wall fit once more. First on cells
-// kCoarseCells times the balloon's (half the cells: 13-23 ms where 19-39), then on the
-// balloon's where the coarse cells lost the genus (a 2-voxel needle's tunnel may close; at 1.5
-// times it did on 2 of 7). Unset where both lost the seed or the previous result's genus.
+// A surface a fit pushed through itself, made one surface again: resurfaced, as the pipeline's
+// final surface is, and the wall fit once more. First on cells kCoarseCells times the
+// balloon's (half the cells: 13-23 ms where 19-39 at 128³), then on the balloon's where the
+// coarse cells lost the genus (a 2-voxel needle's tunnel may close; at 1.5 times it did on 2 of
+// 7). Unset where both lost the seed or the previous result's genus.
 constexpr float kCoarseCells = 1.25f;
 
 std::optional<reconstruct::SurfaceResult> remade(
     const volume::Volume& input, const volume::Volume& smoothed, const segment::Mesh& crossed,
     const PipelineResult& previous, const Vec3f& seed_mm, const PipelineConfig& config) {
-  const mesh::PointCloud samples = mesh::oriented_samples(crossed);
-  for (const float scale : {kCoarseCells, 1.0f}) {
-    reconstruct::PoissonOptions scaled = poisson_options(config, input);
-    scaled.cell_mm *= scale;
-    reconstruct::SurfaceResult s = reconstruct::reconstruct_surface(samples, seed_mm, scaled);
-    if (s.mesh.triangles.empty() || !s.seed_enclosed || !s.topology.manifold ||
-        s.topology.components != 1 || s.topology.genus != previous.topology.genus)
-      continue;
-    s.mesh = segment::fit_to_wall(smoothed, s.mesh, previous.balloon_stats, config.wall_fit_options,
-                                  config.balloon.threads);
-    return s;
-  }
-  return std::nullopt;
+  std::optional<reconstruct::SurfaceResult> s =
+      resurfaced(input, crossed, previous.topology.genus, seed_mm, config, kCoarseCells);
+  if (s)
+    s->mesh = segment::fit_to_wall(smoothed, s->mesh, previous.balloon_stats,
+                                   config.wall_fit_options, config.balloon.threads);
+  return s;
 }
 
 // `again`'s surface as `tracked`'s, with its topology, enclosed volume and labels.
@@ -179,7 +172,7 @@ PipelineResult carried(const PipelineResult& previous, const PipelineResult& smo
   r.second_opinion = false;
   r.coarse_start = {};
   // (no reconstruction on this volume)
-  r.dark_tunnels_closed = r.tissue_columns_filled = r.bright_inside_opened = false;
+  r.dark_tunnels_closed = r.tissue_columns_filled = r.bright_inside_opened = r.resurfaced = false;
   r.bright_inside_left = false;
   r.warm_start = true;
   r.start_reason = "previous surface";

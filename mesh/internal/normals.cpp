@@ -57,6 +57,21 @@ PointCloud oriented_samples(const Mesh& mesh, const std::vector<char>& keep,
   return out;
 }
 
+std::vector<Vec3f> vertex_normals(const Mesh& mesh) {
+  check_mesh(mesh, "vertex_normals");
+  std::vector<Vec3f> normal(mesh.vertices.size(), Vec3f::Zero());
+  for (const auto& tri : mesh.triangles) {
+    const Vec3f& a = mesh.vertices[tri[0]];
+    const Vec3f cross = (mesh.vertices[tri[1]] - a).cross(mesh.vertices[tri[2]] - a);
+    const float len = cross.norm();
+    if (len > 0.0f)
+      for (auto v : tri) normal[v] += cross / len;
+  }
+  for (Vec3f& n : normal)
+    if (n.norm() > 0.0f) n.normalize();
+  return normal;
+}
+
 PointCloud oriented_samples(const Mesh& mesh) {
   check_mesh(mesh, "oriented_samples");
   return oriented_samples(mesh, std::vector<char>(mesh.triangles.size(), 1),

@@ -26,19 +26,6 @@ CornerTable neighbours(const Mesh& surface) {
                      [&](std::uint32_t f, int k) { return surface.triangles[f][(k + 1) % 3]; });
 }
 
-// Equation (2)'s normals, as the balloon passes take them; zero where every triangle around a
-// vertex is degenerate (its profile then samples the vertex alone).
-std::vector<Vec3f> vertex_normals(const Mesh& surface) {
-  std::vector<Vec3f> n(surface.vertices.size(), Vec3f::Zero());
-  for (const auto& t : surface.triangles) {
-    const Vec3f face = unit_face_normal(surface.vertices, t);
-    for (const std::uint32_t v : t) n[v] += face;
-  }
-  for (Vec3f& x : n)
-    if (x.norm() > 0.0f) x.normalize();
-  return n;
-}
-
 // values[v * width + j] replaced by their mean over v and its neighbours, `rounds` times.
 void average_over_rings(std::vector<float>& values, int width, const CornerTable& nb, int rounds,
                         mesh::Workers& workers) {
@@ -121,7 +108,7 @@ Mesh fit_to_wall(const volume::Volume& smoothed_in, const Mesh& surface,
   const int width = 2 * static_cast<int>(std::lround(options.reach_vox / options.step_vox)) + 1;
   const float step_mm = options.step_vox * vox_mm;
   const CornerTable nb = neighbours(surface);
-  const std::vector<Vec3f> normal = vertex_normals(surface);
+  const std::vector<Vec3f> normal = mesh::vertex_normals(surface);  // equation (2)'s, as the passes
   mesh::Workers workers(threads);
   std::vector<float> profiles =
       sample_profiles(ImageSampler(smoothed), smoothed, surface, normal, width, step_mm, workers);

@@ -34,7 +34,8 @@ std::vector<Vec3f> area_weighted_normals(std::size_t vertices, Position position
   return n;
 }
 
-std::vector<Vec3f> vertex_normals(const Mesh& m) {
+// (Not mesh::vertex_normals, equation (2)'s: these weigh each triangle by its area.)
+std::vector<Vec3f> area_normals(const Mesh& m) {
   return area_weighted_normals(
       m.vertices.size(), [&](std::uint32_t v) { return m.vertices[v]; },
       [&](auto add) {
@@ -88,7 +89,7 @@ std::string check_walls_kept(const Mesh& previous, std::span<const StopReason> s
   // wall in a shadow, where the relative cost stopped the vertex below the wall's level).
   const float min_rise = 0.5f * (wall_level - scale.map(seed_level));
   if (stop.size() != previous.vertices.size()) return {};  // (no stop reasons: nothing to check)
-  const std::vector<Vec3f> normal = vertex_normals(previous);
+  const std::vector<Vec3f> normal = area_normals(previous);
   const float step_mm = 0.5f * vox_mm;
   const int steps = static_cast<int>(std::ceil(reach_mm / step_mm));
   int walls = 0, lost = 0;
