@@ -96,17 +96,18 @@ struct PipelineConfig {
 /// rasterization on the input grid (not one of the paper's stages).
 struct StageTimings {
   double smooth_ms = 0, balloon_ms = 0, opening_ms = 0, reconstruct_ms = 0, mesh_ms = 0,
-         reinflate_ms = 0, labels_ms = 0, total_ms = 0;
+         reinflate_ms = 0, resurface_ms = 0, labels_ms = 0, total_ms = 0;
 
-  /// The six stages of the method by the names the report, the journal and /stats use (without
-  /// `labels` and `total`), in pipeline order.
-  std::array<std::pair<const char*, double>, 6> stages() const {
+  /// The seven stages of the method by the names the report, the journal and /stats use
+  /// (without `labels` and `total`), in pipeline order.
+  std::array<std::pair<const char*, double>, 7> stages() const {
     return {{{"smooth", smooth_ms},
              {"balloon", balloon_ms},
              {"opening", opening_ms},
              {"reconstruct", reconstruct_ms},
              {"mesh", mesh_ms},
-             {"reinflate", reinflate_ms}}};
+             {"reinflate", reinflate_ms},
+             {"resurface", resurface_ms}}};
   }
 };
 

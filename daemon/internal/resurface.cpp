@@ -10,9 +10,13 @@
 namespace sonomesh::daemon::internal {
 namespace {
 
+// First on cells this many times the configured ones (half the cells, and the coarser grid
+// averages more of the speckle away), then on those where that lost the genus (a 2-voxel
+// needle's tunnel may close; at 1.5 times thin tubes were lost too: docs/stopping.md item 19).
+constexpr float kCoarseCells = 1.25f;
+
 // `surface` moved along its normals by the one distance that makes it enclose `volume_ml`: the
-// reconstruction's blur of the indicator takes a curved wall in by a fraction of a voxel (a
-// 64³ echo torus's by 0.2 voxel, 6 % of its volume), and the wall fit had placed that volume.
+// reconstruction's blur of the indicator takes a curved wall in, where the wall fit had placed it.
 void keep_volume(segment::Mesh& surface, double volume_ml) {
   const double area_mm2 = mesh::surface_area_mm2(surface);
   if (!(area_mm2 > 0.0)) return;
@@ -27,12 +31,9 @@ void keep_volume(segment::Mesh& surface, double volume_ml) {
 std::optional<reconstruct::SurfaceResult> resurfaced(const volume::Volume& input,
                                                      const segment::Mesh& surface, int genus,
                                                      const Vec3f& seed_mm,
-                                                     const PipelineConfig& config,
-                                                     float first_cells) {
+                                                     const PipelineConfig& config) {
   const mesh::PointCloud samples = mesh::oriented_samples(surface);
-  std::vector<float> scales{first_cells};
-  if (first_cells != 1.0f) scales.push_back(1.0f);
-  for (const float scale : scales) {
+  for (const float scale : {kCoarseCells, 1.0f}) {
     reconstruct::PoissonOptions scaled = poisson_options(config, input);
     scaled.cell_mm *= scale;
     reconstruct::SurfaceResult s = reconstruct::reconstruct_surface(samples, seed_mm, scaled);
@@ -50,7 +51,7 @@ void resurface_stage(const volume::Volume& input, const Vec3f& seed_mm,
   if (!config.resurface || !result.topology.manifold || result.topology.components != 1) return;
   const auto t = Clock::now();
   std::optional<reconstruct::SurfaceResult> again =
-      resurfaced(input, result.mesh, result.topology.genus, seed_mm, config, 1.0f);
+      resurfaced(input, result.mesh, result.topology.genus, seed_mm, config);
   if (again) {
     keep_volume(again->mesh, result.enclosed_volume_ml);
     result.mesh = std::move(again->mesh);
@@ -59,7 +60,7 @@ void resurface_stage(const volume::Volume& input, const Vec3f& seed_mm,
     result.enclosed_volume_ml = result.topology.volume_ml;
     result.resurfaced = true;
   }
-  result.timings.reinflate_ms += ms_since(t);
+  result.timings.resurface_ms += ms_since(t);
 }
 
 }  // namespace sonomesh::daemon::internal

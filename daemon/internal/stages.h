@@ -33,19 +33,17 @@ reconstruct::PoissonOptions poisson_options(const PipelineConfig& config,
                                             const volume::Volume& input);
 
 /// `surface` (closed, of `genus`) made again from its own oriented samples by Kazhdan's
-/// reconstruction, on cells `first_cells` times the configured ones, then on those where that
-/// lost the genus: unset where both lost the seed, the genus or the one closed manifold
-/// component. Its topology's volume is measured.
+/// reconstruction, on cells 1.25 times the configured ones, then on those where that lost the
+/// genus: unset where both lost the seed, the genus or the one closed manifold component. Its
+/// topology's volume is measured.
 std::optional<reconstruct::SurfaceResult> resurfaced(const volume::Volume& input,
                                                      const segment::Mesh& surface, int genus,
                                                      const Vec3f& seed_mm,
-                                                     const PipelineConfig& config,
-                                                     float first_cells);
+                                                     const PipelineConfig& config);
 
 /// Beyond the paper, after the wall fit (PipelineConfig::resurface): the fitted surface
-/// `resurfaced` on the configured cells, the first reconstruction's (coarser ones took a thin
-/// tube's wall in), kept where that holds (PipelineResult::resurfaced); its time is the
-/// reinflate stage's.
+/// `resurfaced`, moved along its normals to the fitted surface's volume, kept where that holds
+/// (PipelineResult::resurfaced).
 void resurface_stage(const volume::Volume& input, const Vec3f& seed_mm,
                      const PipelineConfig& config, PipelineResult& result);
 

@@ -107,17 +107,14 @@ double folded_share(const segment::Mesh& before, const segment::Mesh& after) {
 }
 
 // A surface a fit pushed through itself, made one surface again: resurfaced, as the pipeline's
-// final surface is, and the wall fit once more. First on cells kCoarseCells times the
-// balloon's (half the cells: 13-23 ms where 19-39 at 128³), then on the balloon's where the
-// coarse cells lost the genus (a 2-voxel needle's tunnel may close; at 1.5 times it did on 2 of
-// 7). Unset where both lost the seed or the previous result's genus.
-constexpr float kCoarseCells = 1.25f;
+// final surface is, and the wall fit once more. Unset where that lost the seed or the previous
+// result's genus.
 
 std::optional<reconstruct::SurfaceResult> remade(
     const volume::Volume& input, const volume::Volume& smoothed, const segment::Mesh& crossed,
     const PipelineResult& previous, const Vec3f& seed_mm, const PipelineConfig& config) {
   std::optional<reconstruct::SurfaceResult> s =
-      resurfaced(input, crossed, previous.topology.genus, seed_mm, config, kCoarseCells);
+      resurfaced(input, crossed, previous.topology.genus, seed_mm, config);
   if (s)
     s->mesh = segment::fit_to_wall(smoothed, s->mesh, previous.balloon_stats,
                                    config.wall_fit_options, config.balloon.threads);

@@ -284,6 +284,26 @@ TEST(EchoPipeline, WallFitPlacesTheSurfaceOnTheWall) {
             std::abs(off.enclosed_volume_ml / truth_ml - 1.0) - 0.03);
 }
 
+// The fitted surface reconstructed once more (docs/stopping.md item 19): the fit's scatter about
+// the wall averaged away, its genus and its volume kept. The 64³ torus at contrast 0.5 went from
+// Dice 0.903 to 0.917 when this was written.
+TEST(EchoPipeline, TheFittedSurfaceReconstructedLiesCloserToTheWall) {
+  const sim::Phantom torus = echo_phantom("torus", 0.5f);
+  PipelineConfig config;
+  config.resurface = false;
+  const PipelineResult off = run_pipeline(torus.image, torus.seed_mm, config);
+  config.resurface = true;
+  const PipelineResult on = run_pipeline(torus.image, torus.seed_mm, config);
+  ASSERT_TRUE(off.ok && off.labels && on.ok && on.labels) << off.error << on.error;
+  EXPECT_FALSE(off.resurfaced);
+  EXPECT_TRUE(on.resurfaced);
+  EXPECT_EQ(on.topology.genus, 1);
+  EXPECT_EQ(off.topology.genus, 1);
+  EXPECT_GE(internal::dice(*on.labels, torus.truth),
+            internal::dice(*off.labels, torus.truth) + 0.007);
+  EXPECT_NEAR(on.enclosed_volume_ml / off.enclosed_volume_ml, 1.0, 0.005);
+}
+
 // An ok cyst-needle of genus 1 and Dice 0.94 or more from a stream that crumpled, inflated again
 // `restarts` times.
 void expect_right_after_crumple(const PipelineResult& r, const sim::Phantom& phantom,
