@@ -165,15 +165,40 @@ BrightStructure deepest_bright_structure(const volume::Volume& smoothed,
 
 bool solid_inside(const BrightStructure& structure) { return structure.deep_vox > kLeastDeepVox; }
 
-long deep_on_a_line(const volume::Volume& smoothed, const InsideRegion& region,
-                    const BrightStructure& structure) {
+namespace {
+
+// The longest stretch along the line through `a` along unit `u` (index space) of the points
+// within 1.5 voxels of it, no gap of more than two voxels, in mm.
+float stretch_mm(const std::vector<Vec3f>& points, const Vec3f& a, const Vec3f& u,
+                 const Vec3f& spacing_mm) {
+  constexpr float kThinVox2 = 1.5f * 1.5f;
+  constexpr float kMostGapVox = 3.0f;
+  std::vector<float> along;
+  for (const Vec3f& p : points) {
+    const Vec3f r = p - a;
+    const float t = r.dot(u);
+    if (r.squaredNorm() - t * t <= kThinVox2) along.push_back(t);
+  }
+  std::sort(along.begin(), along.end());
+  float longest = 0.0f;
+  for (std::size_t i = 0, start = 0; i < along.size(); ++i) {
+    if (i > 0 && along[i] - along[i - 1] > kMostGapVox) start = i;
+    longest = std::max(longest, along[i] - along[start] + 1.0f);
+  }
+  return longest * u.cwiseProduct(spacing_mm).norm();
+}
+
+}  // namespace
+
+DeepLine deep_on_a_line(const volume::Volume& smoothed, const InsideRegion& region,
+                        const BrightStructure& structure) {
   constexpr int kLines = 200;
   constexpr std::size_t kMostSampled = 4096;
   constexpr float kNearVox2 = 3.0f * 3.0f;
   std::vector<Vec3f> deep;
   for (const Vec3i& v : structure.voxels)
     if (deep_inside(smoothed, region, v)) deep.push_back(v.cast<float>());
-  if (deep.size() < 2) return static_cast<long>(deep.size());
+  if (deep.size() < 2) return {.voxels = static_cast<long>(deep.size())};
   std::mt19937 random(1);  // (the same lines on every run: the verdict is repeatable)
   const std::size_t all = deep.size();
   if (all > kMostSampled) {
@@ -182,6 +207,7 @@ long deep_on_a_line(const volume::Volume& smoothed, const InsideRegion& region,
   }
   std::uniform_int_distribution<std::size_t> pick(0, deep.size() - 1);
   long most = 0;
+  Vec3f best_a = Vec3f::Zero(), best_u = Vec3f::UnitX();
   for (int line = 0; line < kLines; ++line) {
     const Vec3f a = deep[pick(random)];
     const Vec3f d = deep[pick(random)] - a;
@@ -193,10 +219,11 @@ long deep_on_a_line(const volume::Volume& smoothed, const InsideRegion& region,
       const float along = r.dot(u);
       near += r.squaredNorm() - along * along <= kNearVox2;
     }
-    most = std::max(most, near);
+    if (near > most) most = near, best_a = a, best_u = u;
   }
-  return static_cast<long>(static_cast<double>(most) * static_cast<double>(all) /
-                           static_cast<double>(deep.size()));
+  return {.voxels = static_cast<long>(static_cast<double>(most) * static_cast<double>(all) /
+                                      static_cast<double>(deep.size())),
+          .length_mm = stretch_mm(deep, best_a, best_u, smoothed.spacing_mm())};
 }
 
 bool passed_over(const BrightStructure& structure, const InsideRegion& region) {

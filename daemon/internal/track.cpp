@@ -39,6 +39,10 @@ constexpr float kMostOpenJump = 0.02f;
 // that came in: half of one pushed on from a dent has 0.6-0.9 % of a 96³ cyst's (simple, echo),
 // a whole one more; echo speckle at most 0.14 % (48 voxels, a 40-volume 96³ stream).
 constexpr double kLeastDeepBrightShare = 0.003;
+// ... and along one line at least this long without a gap (deep_on_a_line): a needle's fill 8.5 mm
+// (half of one pushed on into a 96³ cyst) to 20 mm, the speckle web's at contrast 0.5 at most
+// 6 mm, though as many deep voxels lie near that line as near a needle.
+constexpr float kLeastNeedleMm = 7.0f;
 // Share of the area the fit may turn over (triangles whose normal reversed): marching cubes'
 // slivers flip under any move (0.1-0.5 % of a 128³ cyst's area), a fold along the normals where
 // the wall moved further than the surface's curvature allows turns more, and the surface is
@@ -218,12 +222,14 @@ std::string track_surface(const volume::Volume& input, const Vec3f& seed_mm,
   // Not only one across the target: a needle pushed on from a dent through the far wall adds
   // half of one (which the balloon, not the tracked surface, must open). Counted along one line:
   // at contrast 0.5 the blood pool's speckle above the mid level is a web through the whole
-  // inside, with as many deep voxels as a needle but on no line.
+  // inside, with as many deep voxels near a line as a needle, but not filling it.
   const double inside_vox = tracked.enclosed_volume_ml * 1e3 / input.spacing_mm().prod();
   if (solid_inside(bright)) {
-    const long on_line = deep_on_a_line(buffers.smoothed, inside, bright);
-    if (static_cast<double>(on_line) > kLeastDeepBrightShare * inside_vox)
-      return "a bright structure inside, " + std::to_string(on_line) + " voxels deep on a line";
+    const DeepLine line = deep_on_a_line(buffers.smoothed, inside, bright);
+    if (static_cast<double>(line.voxels) > kLeastDeepBrightShare * inside_vox &&
+        line.length_mm >= kLeastNeedleMm)
+      return "a bright structure inside, " + std::to_string(line.voxels) +
+             " voxels deep on a line of " + std::to_string(std::lround(line.length_mm)) + " mm";
   }
   if (!config.want_labels) tracked.labels.reset();
   tracked.timings.labels_ms = ms_since(t_labels) - tracked.timings.reconstruct_ms;

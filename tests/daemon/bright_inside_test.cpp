@@ -1,5 +1,5 @@
 // The tracked surface's check for a bright structure inside (internal::deep_on_a_line): a
-// needle's deep voxels lie along one line, a web of blood-pool speckle's on none.
+// needle's deep voxels lie along one line and fill it, a web of blood-pool speckle's do neither.
 #include "daemon/internal/bright_inside.h"
 
 #include <gtest/gtest.h>
@@ -47,9 +47,12 @@ TEST(BrightInside, ANeedlesDeepVoxelsLieOnALine) {
   const InsideRegion region = sphere_region();
   const BrightStructure needle = deepest_bright_structure(image, region);
   ASSERT_GT(needle.deep_vox, 100);
-  const long on_line = deep_on_a_line(image, region, needle);
-  EXPECT_GE(10 * on_line, 9 * needle.deep_vox) << on_line << " of " << needle.deep_vox;
-  EXPECT_LE(on_line, needle.deep_vox);
+  const DeepLine line = deep_on_a_line(image, region, needle);
+  EXPECT_GE(10 * line.voxels, 9 * needle.deep_vox) << line.voxels << " of " << needle.deep_vox;
+  EXPECT_LE(line.voxels, needle.deep_vox);
+  // Across the 20 mm sphere, less the needle's ends where it is not deep.
+  EXPECT_GE(line.length_mm, 15.0f);
+  EXPECT_LE(line.length_mm, 20.5f);
 }
 
 TEST(BrightInside, AWebOfSpeckleHasFewDeepVoxelsOnAnyLine) {
@@ -64,9 +67,9 @@ TEST(BrightInside, AWebOfSpeckleHasFewDeepVoxelsOnAnyLine) {
   const InsideRegion region = sphere_region();
   const BrightStructure web = deepest_bright_structure(image, region);
   ASSERT_GT(web.deep_vox, 1000);
-  const long on_line = deep_on_a_line(image, region, web);
-  EXPECT_LT(8 * on_line, web.deep_vox) << on_line << " of " << web.deep_vox;
-  EXPECT_GT(on_line, 0);
+  const DeepLine line = deep_on_a_line(image, region, web);
+  EXPECT_LT(8 * line.voxels, web.deep_vox) << line.voxels << " of " << web.deep_vox;
+  EXPECT_GT(line.voxels, 0);
 }
 
 }  // namespace

@@ -215,7 +215,8 @@ TEST(WarmStartPipeline, ATrackedSurfaceRemadeKeepsItsGenusAndWall) {
 // At echo contrast 0.5 each fit of a tracked surface follows a few speckle grains, and fitted
 // again from there, volume after volume, a chain drifted off the wall (Dice 0.945 to 0.923 over
 // seven volumes). Remade from its samples before the next volume tracks from it, the chain stays
-// on the wall: every volume within 0.01 of the chain's first, the balloon's (0.938 at worst).
+// on the wall: every volume within 0.012 of the chain's first, the balloon's, whose surface is
+// reconstructed once more where a tracked one is published as fitted (0.9375 against 0.9457).
 TEST(WarmStartPipeline, AnEchoChainAtContrastHalfStaysOnTheWall) {
   Stream stream;
   std::optional<double> first;
@@ -235,11 +236,9 @@ TEST(WarmStartPipeline, AnEchoChainAtContrastHalfStaysOnTheWall) {
     if (!first) first = dice;
     tracked += r.tracking.chain > 0;
     EXPECT_EQ(r.topology.genus, p.genus) << "volume " << i;
-    EXPECT_GE(dice, *first - 0.01) << "volume " << i;
+    EXPECT_GE(dice, *first - 0.012) << "volume " << i;
   }
-  // (5 of 7 when this was written: the blood pool's speckle web refused volume 6 as a bright
-  // structure inside, just over the limit; 7 of 7 before the balloon's surface was resurfaced.)
-  EXPECT_GE(tracked, 5);
+  EXPECT_GE(tracked, 6);  // (7 of 7 when this was written)
 }
 
 }  // namespace
