@@ -8,6 +8,7 @@
 #include <cmath>
 #include <string>
 #include <tuple>
+#include <utility>
 
 #include "daemon/internal/metrics.h"
 #include "daemon/pipeline.h"
@@ -21,6 +22,18 @@ sim::Phantom echo_phantom(const std::string& name, float contrast, int size_vox 
   sim::PhantomSpec spec{.phantom = name, .size_vox = size_vox, .seed = seed};
   spec.contrast = contrast;
   return sim::make_phantom(sim::with_echo_realism(spec));
+}
+
+// The default pipeline on `phantom` with one of its steps off, then on; both with labels.
+std::pair<PipelineResult, PipelineResult> off_and_on(const sim::Phantom& phantom,
+                                                     bool PipelineConfig::*step) {
+  PipelineConfig config;
+  config.*step = false;
+  PipelineResult off = run_pipeline(phantom.image, phantom.seed_mm, config);
+  config.*step = true;
+  PipelineResult on = run_pipeline(phantom.image, phantom.seed_mm, config);
+  EXPECT_TRUE(off.ok && on.ok) << off.error << on.error;
+  return {std::move(off), std::move(on)};
 }
 
 // One stop rule alone, without the pipeline's second opinion.
@@ -272,12 +285,8 @@ TEST(EchoPipeline, WallFitPlacesTheSurfaceOnTheWall) {
   double truth_voxels = 0;
   for (const std::uint8_t v : lv.truth.u8()) truth_voxels += v != 0;
   const double truth_ml = truth_voxels * lv.truth.spacing_mm().prod() * 1e-3;
-  PipelineConfig config;
-  config.wall_fit = false;
-  const PipelineResult off = run_pipeline(lv.image, lv.seed_mm, config);
-  config.wall_fit = true;
-  const PipelineResult on = run_pipeline(lv.image, lv.seed_mm, config);
-  ASSERT_TRUE(off.ok && off.labels && on.ok && on.labels) << off.error << on.error;
+  const auto [off, on] = off_and_on(lv, &PipelineConfig::wall_fit);
+  ASSERT_TRUE(off.labels && on.labels);
   EXPECT_EQ(on.topology.genus, off.topology.genus);
   EXPECT_GE(internal::dice(*on.labels, lv.truth), internal::dice(*off.labels, lv.truth) + 0.01);
   EXPECT_LT(std::abs(on.enclosed_volume_ml / truth_ml - 1.0),
@@ -289,12 +298,8 @@ TEST(EchoPipeline, WallFitPlacesTheSurfaceOnTheWall) {
 // Dice 0.903 to 0.917 when this was written.
 TEST(EchoPipeline, TheFittedSurfaceReconstructedLiesCloserToTheWall) {
   const sim::Phantom torus = echo_phantom("torus", 0.5f);
-  PipelineConfig config;
-  config.resurface = false;
-  const PipelineResult off = run_pipeline(torus.image, torus.seed_mm, config);
-  config.resurface = true;
-  const PipelineResult on = run_pipeline(torus.image, torus.seed_mm, config);
-  ASSERT_TRUE(off.ok && off.labels && on.ok && on.labels) << off.error << on.error;
+  const auto [off, on] = off_and_on(torus, &PipelineConfig::resurface);
+  ASSERT_TRUE(off.labels && on.labels);
   EXPECT_FALSE(off.resurfaced);
   EXPECT_TRUE(on.resurfaced);
   EXPECT_EQ(on.topology.genus, 1);
