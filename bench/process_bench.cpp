@@ -183,9 +183,8 @@ int main(int argc, char** argv) {
   }
   if (format == "md") {
     std::printf(
-        "| phantom | size | smooth | balloon | opening | reconstruct | mesh | reinflate | "
-        "resurface "
-        "| labels | total (ms) | target | balloon iterations | grid | c2f |\n");
+        "| phantom | size | smooth | balloon | opening | reconstruct | mesh | reinflate "
+        "| resurface | labels | total (ms) | target | balloon iterations | grid | c2f |\n");
     std::printf("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n");
   }
   try {

@@ -48,7 +48,8 @@ void resurface_stage(const volume::Volume& input, const Vec3f& seed_mm,
                      const PipelineConfig& config, PipelineResult& result);
 
 /// §1-5 and the second pass, after the smoothing: the balloon (warm, or cold), the surface, the
-/// reinflation. Returns the error, empty if there is a surface.
+/// reinflation and the wall fit, the surface made again. Returns the error, empty if there is a
+/// surface.
 std::string segment_stages(const volume::Volume& input, const Vec3f& seed_mm,
                            const PipelineConfig& config, PipelineBuffers& buffers,
                            const WarmStart* warm, const std::stop_token& stop,

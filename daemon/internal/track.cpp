@@ -39,9 +39,9 @@ constexpr float kMostOpenJump = 0.02f;
 // that came in: half of one pushed on from a dent has 0.6-0.9 % of a 96³ cyst's (simple, echo),
 // a whole one more; echo speckle at most 0.14 % (48 voxels, a 40-volume 96³ stream).
 constexpr double kLeastDeepBrightShare = 0.003;
-// ... and along one line at least this long without a gap (deep_on_a_line): a needle's fill 8.5 mm
-// (half of one pushed on into a 96³ cyst) to 20 mm, the speckle web's at contrast 0.5 at most
-// 6 mm, though as many deep voxels lie near that line as near a needle.
+// ... filling at least this much of one line (deep_on_a_line): needles fill 8.5 mm (half of one
+// pushed on into a 96³ cyst) to 20 mm, the speckle web at contrast 0.5 mostly 2-6 mm, though as
+// many deep voxels lie near its line as near a needle's.
 constexpr float kLeastNeedleMm = 7.0f;
 // Share of the area the fit may turn over (triangles whose normal reversed): marching cubes'
 // slivers flip under any move (0.1-0.5 % of a 128³ cyst's area), a fold along the normals where
@@ -113,7 +113,6 @@ double folded_share(const segment::Mesh& before, const segment::Mesh& after) {
 // A surface a fit pushed through itself, made one surface again: resurfaced, as the pipeline's
 // final surface is, and the wall fit once more. Unset where that lost the seed or the previous
 // result's genus.
-
 std::optional<reconstruct::SurfaceResult> remade(
     const volume::Volume& input, const volume::Volume& smoothed, const segment::Mesh& crossed,
     const PipelineResult& previous, const Vec3f& seed_mm, const PipelineConfig& config) {
