@@ -303,14 +303,16 @@ TEST(DaemonRun, ALiveStreamIsSegmentedTwoVolumesAtATime) {
   }
   ASSERT_GE(busy.size(), 4u);
   // One lane at a time shows overlaps of up to ~5 ms (the journal's times are taken a little
-  // apart); two lanes overlap by tens of milliseconds.
+  // apart); two lanes overlap by a volume's time less the 25 ms between arrivals: 30-116 ms
+  // alone, 19.9 once under ctest -j2 (2026-12-06).
   std::sort(busy.begin(), busy.end());
   double latest_end = busy.front().second, most_ms = 0.0;
   for (std::size_t i = 1; i < busy.size(); ++i) {
     most_ms = std::max(most_ms, latest_end - busy[i].first);
     latest_end = std::max(latest_end, busy[i].second);
   }
-  EXPECT_GT(most_ms, 20.0) << "no two volumes were segmented at the same time";
+  std::printf("most overlap %.1f ms over %zu volumes\n", most_ms, busy.size());
+  EXPECT_GT(most_ms, 12.0) << "no two volumes were segmented at the same time";
   probe->wait(5000ms);
 }
 
