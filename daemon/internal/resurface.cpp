@@ -15,13 +15,13 @@ namespace {
 // needle's tunnel may close; at 1.5 times thin tubes were lost too: docs/stopping.md item 19).
 constexpr float kCoarseCells = 1.25f;
 
-// `surface` moved along its normals by the one distance that makes it enclose `volume_ml`: the
-// reconstruction's blur of the indicator takes a curved wall in, where the wall fit had placed it.
-void keep_volume(segment::Mesh& surface, double volume_ml) {
+// `surface`, enclosing `has_ml`, moved along its normals by the one distance that makes it
+// enclose `volume_ml`: the reconstruction's blur of the indicator takes a curved wall in, where
+// the wall fit had placed it.
+void keep_volume(segment::Mesh& surface, double has_ml, double volume_ml) {
   const double area_mm2 = mesh::surface_area_mm2(surface);
   if (!(area_mm2 > 0.0)) return;
-  const auto out_mm =
-      static_cast<float>((volume_ml - reconstruct::enclosed_volume_ml(surface)) * 1e3 / area_mm2);
+  const auto out_mm = static_cast<float>((volume_ml - has_ml) * 1e3 / area_mm2);
   const std::vector<Vec3f> normal = mesh::vertex_normals(surface);
   for (std::size_t v = 0; v < normal.size(); ++v) surface.vertices[v] += out_mm * normal[v];
 }
@@ -40,7 +40,6 @@ std::optional<reconstruct::SurfaceResult> resurfaced(const volume::Volume& input
     if (s.mesh.triangles.empty() || !s.seed_enclosed || !s.topology.manifold ||
         s.topology.components != 1 || s.topology.genus != genus)
       continue;
-    s.topology.volume_ml = reconstruct::enclosed_volume_ml(s.mesh);
     return s;
   }
   return std::nullopt;
@@ -53,7 +52,7 @@ void resurface_stage(const volume::Volume& input, const Vec3f& seed_mm,
   std::optional<reconstruct::SurfaceResult> again =
       resurfaced(input, result.mesh, result.topology.genus, seed_mm, config);
   if (again) {
-    keep_volume(again->mesh, result.enclosed_volume_ml);
+    keep_volume(again->mesh, again->topology.volume_ml, result.enclosed_volume_ml);
     result.mesh = std::move(again->mesh);
     result.topology = again->topology;
     result.topology.volume_ml = reconstruct::enclosed_volume_ml(result.mesh);

@@ -204,8 +204,7 @@ std::vector<OptionSpec> pipeline_options() {
                    c.pipeline.smooth_sigma_mm.reset();
                  }
                }});
-  o.push_back(flag("pipeline", "reinflate",
-                   "second balloon pass from the reconstruction back to the wall",
+  o.push_back(flag("pipeline", "reinflate", "second balloon pass, reconstruction to the wall",
                    REF(pipeline.reinflate)));
   o.push_back(num("pipeline", "reinflate_max_move_vox", "vox", above(0, 20),
                   "farthest a vertex moves in the second pass",

@@ -34,8 +34,7 @@ reconstruct::PoissonOptions poisson_options(const PipelineConfig& config,
 
 /// `surface` (closed, of `genus`) made again from its own oriented samples by Kazhdan's
 /// reconstruction, on cells 1.25 times the configured ones, then on those where that lost the
-/// genus: unset where both lost the seed, the genus or the one closed manifold component. Its
-/// topology's volume is measured.
+/// genus: unset where both lost the seed, the genus or the one closed manifold component.
 std::optional<reconstruct::SurfaceResult> resurfaced(const volume::Volume& input,
                                                      const segment::Mesh& surface, int genus,
                                                      const Vec3f& seed_mm,
