@@ -57,15 +57,33 @@ std::vector<Vec3f> vertex_normals(const BalloonMesh& m) {
       });
 }
 
+namespace {
+
+// The mean level over a 3×3×3 lattice `spacing_mm` apart centred on p, in the cost's scale.
+float region_level(const ImageSampler& sampler, const CostScale& scale, const Vec3f& p,
+                   float spacing_mm) {
+  float sum = 0.0f;
+  for (int k = -1; k <= 1; ++k)
+    for (int j = -1; j <= 1; ++j)
+      for (int i = -1; i <= 1; ++i)
+        sum += scale.map(sampler.value(p + spacing_mm * Vec3f(i, j, k)));
+  return sum / 27.0f;
+}
+
+}  // namespace
+
 std::string check_start_safe(const BalloonMesh& start, const ImageSampler& sampler,
                              const CostScale& scale, float wall_level, const StepKernel& box,
-                             float grains) {
+                             const StartAllowance& allow) {
   int failed = 0, outside = 0, samples = 0;
   Vec3f first = Vec3f::Zero();
   auto test = [&](const Vec3f& p) {
     ++samples;
     const bool out = box.outside(p);
     if (!out && scale.map(sampler.value(p)) < wall_level) return;
+    if (!out && allow.region_mm > 0.0f &&
+        region_level(sampler, scale, p, allow.region_mm) < wall_level)
+      return;  // a grain: the region around it is the inside's
     if (failed++ == 0) first = p;
     outside += out;
   };
@@ -74,7 +92,8 @@ std::string check_start_safe(const BalloonMesh& start, const ImageSampler& sampl
     const Halfedge h = BalloonMesh::halfedge(Edge{e}, 0);
     test(0.5f * (start.point_mm(start.from_vertex(h)) + start.point_mm(start.to_vertex(h))));
   }
-  if (outside == 0 && static_cast<float>(failed) <= grains * static_cast<float>(samples)) return {};
+  if (outside == 0 && static_cast<float>(failed) <= allow.share * static_cast<float>(samples))
+    return {};
   char where[96];
   std::snprintf(where, sizeof where, "(%.1f, %.1f, %.1f) mm", first.x(), first.y(), first.z());
   return std::to_string(failed) + " of " + std::to_string(samples) +

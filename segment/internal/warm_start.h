@@ -17,14 +17,22 @@ namespace sonomesh::segment::internal {
 /// Area-weighted unit vertex normals of `m` (zero where the faces cancel), deleted faces left out.
 std::vector<Vec3f> vertex_normals(const BalloonMesh& m);
 
+/// What check_start_safe lets pass: a share of failed samples, and where region_mm > 0, samples
+/// on a grain (the level stop's: blood-pool speckle grains above the level do not stop it).
+struct StartAllowance {
+  float share = 0.0f;
+  // A sample above the wall level is a grain, not a wall, when the mean over a 3×3×3 lattice
+  // this far apart around it is below the level: a wall is a region, a grain is not. 0: none.
+  float region_mm = 0.0f;
+};
+
 /// The check on the new volume: every vertex and every edge midpoint of `start` lies in the
 /// step's box and below `wall_level` (the cost rule's "inside", in the cost's scale), all but
-/// `grains` of them (a share) for the level stop, which blood-pool speckle grains above the
-/// level do not stop. Returns why not (how many samples failed, and where the first one is),
-/// empty if safe.
+/// those `allow` lets pass. Returns why not (how many samples failed, and where the first one
+/// is), empty if safe.
 std::string check_start_safe(const BalloonMesh& start, const ImageSampler& sampler,
                              const CostScale& scale, float wall_level, const StepKernel& box,
-                             float grains = 0.0f);
+                             const StartAllowance& allow = {});
 
 /// The walls the previous balloon stopped at must still be there: a vertex of `previous` that
 /// the boundary cost stopped (`stop` Boundary) needs a sample at or above `wall_level` within
