@@ -151,7 +151,8 @@ Tally run_stream(const Args& a) {
     const daemon::PipelineResult r =
         daemon::run_pipeline(p.image, seed_mm, config, buffers, warm ? &*warm : nullptr);
     warm.reset();
-    if (a.warm_start && r.ok) {
+    // (A suspect result starts nothing, as the worker's seed policy has it.)
+    if (a.warm_start && r.ok && r.quality_ok) {
       warm = daemon::warm_start_from(r, 3.0f * a.spacing_mm);
       if (!a.track) warm->previous.reset();
       if (a.track && !a.no_remake && r.tracking.chain > 0)
