@@ -56,9 +56,9 @@ void describe_result(const PipelineResult& result, nlohmann::json& line) {
 // it; a chain tracked on past its length drifted until the open patch refused it (at 20/s cold
 // starts in two daemon_bench runs of three). Four volumes before: a refresh then fell on a volume
 // whose balloon came out suspect, and every cold start after it did too.
-int refresh_chain(const PipelineConfig& config) {
+int refresh_chain(int chain_length) {
   constexpr int kRefreshLead = 2;
-  return std::max(1, config.track_max_chain - kRefreshLead);
+  return std::max(1, chain_length - kRefreshLead);
 }
 
 }  // namespace
@@ -187,7 +187,8 @@ std::optional<Worker::Start> Worker::begin_volume(const volume::Volume& input, i
               .decision = {},
               .warm = {},
               .anchor = 0,
-              .anchor_note = {}};
+              .anchor_note = {},
+              .chain_length = 0};
   if (lanes > 1) {
     if (start.config.pipeline.balloon.threads == 0) start.config.pipeline.balloon.threads = 1;
     start.config.pipeline.poisson.fft_threads = 1;
@@ -205,6 +206,7 @@ std::optional<Worker::Start> Worker::begin_volume(const volume::Volume& input, i
   start.anchor = anchor_;
   if (start.warm && previous_) start.anchor_note = previous_->note;
   // While a lane refreshes the anchor, the chain runs on past its length rather than start cold.
+  start.chain_length = start.config.pipeline.track_max_chain;
   if (refresh_busy_) start.config.pipeline.track_max_chain *= 2;
   return start;
 }
@@ -278,7 +280,9 @@ void Worker::process(QueuedVolume item, PipelineBuffers& buffers, int lanes) {
   out.line = std::move(line);
   out_.push(std::move(out));
   if (!refresh_from) return;
-  if (refresh_from->previous->tracking.chain < refresh_chain(start->config.pipeline))
+  // (The configured length: this volume's own may have been doubled while another lane was busy,
+  // and a remake in its place let the chain run past its length into a cold start.)
+  if (refresh_from->previous->tracking.chain < refresh_chain(start->chain_length))
     return remake_anchor(seq, *kept_input, *start, seed_mm, *refresh_from->previous, buffers);
   refresh_anchor(seq, *kept_input, *start, seed_mm, *refresh_from, buffers);
 }

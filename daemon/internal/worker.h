@@ -50,6 +50,7 @@ class Worker {
     std::optional<WarmStart> warm;
     std::uint64_t anchor = 0;  // anchor_ when the warm start was taken
     std::string anchor_note;   // Previous::note of that warm start
+    int chain_length = 0;      // the configured track_max_chain (config's is doubled while busy)
   };
   void process(QueuedVolume item, PipelineBuffers& buffers, int lanes);
   std::optional<Start> begin_volume(const volume::Volume& input, int lanes, nlohmann::json& line);
