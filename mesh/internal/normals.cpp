@@ -1,5 +1,7 @@
 // Oriented vertex samples: normals of equation (2) and one-third-area weights.
 #include <Eigen/Geometry>
+#include <array>
+#include <cstdint>
 #include <stdexcept>
 #include <string>
 
@@ -15,6 +17,15 @@ void check_mesh(const Mesh& mesh, const char* who) {
         throw std::invalid_argument(std::string(who) + ": triangle index " + std::to_string(v) +
                                     " out of range (" + std::to_string(mesh.vertices.size()) +
                                     " vertices)");
+}
+
+// Twice the triangle's area, and its unit normal (zero when it is degenerate).
+float unit_normal(const Mesh& mesh, const std::array<std::uint32_t, 3>& tri, Vec3f& unit) {
+  const Vec3f& a = mesh.vertices[tri[0]];
+  const Vec3f cross = (mesh.vertices[tri[1]] - a).cross(mesh.vertices[tri[2]] - a);
+  const float len = cross.norm();
+  unit = len > 0.0f ? Vec3f(cross / len) : Vec3f::Zero();
+  return len;
 }
 
 }  // namespace
@@ -36,13 +47,12 @@ PointCloud oriented_samples(const Mesh& mesh, const std::vector<char>& keep,
   for (std::size_t t = 0; t < mesh.triangles.size(); ++t) {
     if (!keep[t]) continue;
     const auto& tri = mesh.triangles[t];
-    const Vec3f& a = mesh.vertices[tri[0]];
-    const Vec3f cross = (mesh.vertices[tri[1]] - a).cross(mesh.vertices[tri[2]] - a);
-    const float len = cross.norm();
+    Vec3f unit;
+    const float len = unit_normal(mesh, tri, unit);
     for (auto v : tri) {
       touched[v] = 1;
       area[v] += len / 6.0f;  // triangle area / 3
-      if (len > 0.0f) normal_sum[v] += cross / len;
+      normal_sum[v] += unit;
     }
   }
   PointCloud out;
@@ -61,11 +71,9 @@ std::vector<Vec3f> vertex_normals(const Mesh& mesh) {
   check_mesh(mesh, "vertex_normals");
   std::vector<Vec3f> normal(mesh.vertices.size(), Vec3f::Zero());
   for (const auto& tri : mesh.triangles) {
-    const Vec3f& a = mesh.vertices[tri[0]];
-    const Vec3f cross = (mesh.vertices[tri[1]] - a).cross(mesh.vertices[tri[2]] - a);
-    const float len = cross.norm();
-    if (len > 0.0f)
-      for (auto v : tri) normal[v] += cross / len;
+    Vec3f unit;
+    unit_normal(mesh, tri, unit);
+    for (auto v : tri) normal[v] += unit;
   }
   for (Vec3f& n : normal)
     if (n.norm() > 0.0f) n.normalize();
