@@ -13,55 +13,107 @@ namespace {
 
 using volume::Vec3i;
 
-// One slice of χ across `axis` at `s`, within the box [lo, hi] (grid cells): cell (u, v) of the
-// slice is grid cell at(u, v), u and v counted from the box's corner.
-struct Slice {
-  const volume::Volume& chi;
-  int axis, s;
-  Vec3i lo, hi;
-  int du() const { return hi[(axis + 1) % 3] - lo[(axis + 1) % 3] + 1; }
-  int dv() const { return hi[(axis + 2) % 3] - lo[(axis + 2) % 3] + 1; }
-  Vec3i at(int u, int v) const {
-    Vec3i c;
-    c[axis] = s;
-    c[(axis + 1) % 3] = lo[(axis + 1) % 3] + u;
-    c[(axis + 2) % 3] = lo[(axis + 2) % 3] + v;
-    return c;
+// The box's cells as bytes, 1 where χ is inside: every slice reads it (its rows one byte per
+// cell rather than a float), and a filled cell is set in it so the next axis sees the fill.
+struct InsideMask {
+  Vec3i lo, dims;
+  std::vector<std::uint8_t> inside;
+
+  InsideMask(const volume::Volume& chi, float iso, const Vec3i& lo_cell, const Vec3i& hi_cell)
+      : lo(lo_cell), dims(hi_cell - lo_cell + Vec3i::Ones()), inside(cells(), 0) {
+    for (int k = 0; k < dims.z(); ++k)
+      for (int j = 0; j < dims.y(); ++j) {
+        const float* row = &chi.f32()[chi.linear_index(lo.x(), lo.y() + j, lo.z() + k)];
+        std::uint8_t* out = &inside[at(Vec3i(0, j, k))];
+        for (int i = 0; i < dims.x(); ++i) out[i] = row[i] > iso;
+      }
+  }
+  std::size_t cells() const {
+    return static_cast<std::size_t>(dims.x()) * dims.y() * static_cast<std::size_t>(dims.z());
+  }
+  std::size_t at(const Vec3i& d) const {  // d from the box's corner
+    return (static_cast<std::size_t>(d.z()) * dims.y() + d.y()) * dims.x() + d.x();
+  }
+  std::ptrdiff_t stride(int axis) const {
+    return axis == 0 ? 1 : axis == 1 ? dims.x() : static_cast<std::ptrdiff_t>(dims.x()) * dims.y();
   }
 };
 
-// The slice's holes: outside cells (4-connected) that do not reach the box's border, each hole
-// as its list of cells.
-std::vector<std::vector<Vec3i>> slice_holes(const Slice& slice, float iso) {
-  const int nu = slice.du(), nv = slice.dv();
-  std::vector<std::uint8_t> seen(static_cast<std::size_t>(nu) * nv, 0);
-  auto inside = [&](int u, int v) {
-    const Vec3i c = slice.at(u, v);
-    return slice.chi.f32()[slice.chi.linear_index(c.x(), c.y(), c.z())] > iso;
-  };
-  std::vector<std::vector<Vec3i>> holes;
-  std::vector<std::pair<int, int>> stack;
-  for (int v0 = 0; v0 < nv; ++v0)
-    for (int u0 = 0; u0 < nu; ++u0) {
-      if (seen[v0 * nu + u0] || inside(u0, v0)) continue;
-      std::vector<Vec3i> cells;
-      bool border = false;
-      stack.assign(1, {u0, v0});
-      seen[v0 * nu + u0] = 1;
-      while (!stack.empty()) {
-        const auto [u, v] = stack.back();
-        stack.pop_back();
-        cells.push_back(slice.at(u, v));
-        border = border || u == 0 || v == 0 || u == nu - 1 || v == nv - 1;
-        const int next[4][2] = {{u + 1, v}, {u - 1, v}, {u, v + 1}, {u, v - 1}};
-        for (const auto& [a, b] : next)
-          if (a >= 0 && b >= 0 && a < nu && b < nv && !seen[b * nu + a] && !inside(a, b)) {
-            seen[b * nu + a] = 1;
-            stack.emplace_back(a, b);
-          }
+// A run of outside cells along one row of a slice, and its union-find parent among the slice's
+// runs; `border` on a root: its region reaches the slice's edge.
+struct Run {
+  int row, first, last;
+  int parent;
+  bool border;
+};
+
+int root(std::vector<Run>& runs, int r) {
+  while (runs[r].parent != r) r = runs[r].parent = runs[runs[r].parent].parent;
+  return r;
+}
+
+void join(std::vector<Run>& runs, int a, int b) {
+  a = root(runs, a);
+  b = root(runs, b);
+  if (a == b) return;
+  runs[b].parent = a;
+  runs[a].border = runs[a].border || runs[b].border;
+}
+
+// The holes of the slice across `axis` at box coordinate `s`: its outside cells (4-connected)
+// that do not reach the box's edge, each hole as its grid cells. The slice is read as runs of
+// outside cells along its rows (x where the slice has it: the mask's contiguous axis), and the
+// runs of neighbouring rows that overlap are joined: a row crosses the surface a few times, so
+// the work is the mask's bytes and a few runs per row, not a flood over every outside cell.
+std::vector<std::vector<Vec3i>> slice_holes(const InsideMask& mask, int axis, int s,
+                                            std::vector<Run>& runs) {
+  const int along = axis == 0 ? 1 : 0, across = axis == 2 ? 1 : 2;
+  const int n_along = mask.dims[along], n_rows = mask.dims[across];
+  const std::ptrdiff_t step = mask.stride(along);
+  runs.clear();
+  std::size_t row_begin = 0;
+  for (int row = 0; row < n_rows; ++row) {
+    Vec3i d = Vec3i::Zero();
+    d[axis] = s;
+    d[across] = row;
+    const std::uint8_t* cell = &mask.inside[mask.at(d)];
+    const std::size_t this_row = runs.size();
+    for (int c = 0; c < n_along;) {
+      if (cell[c * step]) {
+        ++c;
+        continue;
       }
-      if (!border) holes.push_back(std::move(cells));
+      const int first = c;
+      while (c < n_along && !cell[c * step]) ++c;
+      const int id = static_cast<int>(runs.size());
+      runs.push_back({row, first, c - 1, id,
+                      row == 0 || row == n_rows - 1 || first == 0 || c == n_along});
     }
+    // Runs of the row before that overlap one of this row's (both lists are in order).
+    for (std::size_t a = row_begin, b = this_row; a < this_row && b < runs.size();) {
+      if (runs[a].first <= runs[b].last && runs[b].first <= runs[a].last)
+        join(runs, static_cast<int>(a), static_cast<int>(b));
+      (runs[a].last < runs[b].last ? a : b)++;
+    }
+    row_begin = this_row;
+  }
+  std::vector<std::vector<Vec3i>> holes;
+  std::vector<int> hole_of(runs.size(), -1);
+  for (std::size_t r = 0; r < runs.size(); ++r) {
+    const int top = root(runs, static_cast<int>(r));
+    if (runs[top].border) continue;
+    if (hole_of[top] < 0) {
+      hole_of[top] = static_cast<int>(holes.size());
+      holes.emplace_back();
+    }
+    for (int c = runs[r].first; c <= runs[r].last; ++c) {
+      Vec3i cell = mask.lo;
+      cell[axis] += s;
+      cell[across] += runs[r].row;
+      cell[along] += c;
+      holes[hole_of[top]].push_back(cell);
+    }
+  }
   return holes;
 }
 
@@ -200,20 +252,24 @@ std::vector<FilledCell> fill_dark_tunnels(volume::Volume& chi, float iso, float 
   std::vector<FilledCell> filled;
   const std::pair<Vec3i, Vec3i> box = inside_box(chi, iso);
   const Vec3i lo = box.first, hi = box.second;  // (a lambda cannot capture structured bindings)
+  if ((hi - lo).minCoeff() < 0) return filled;
+  InsideMask mask(chi, iso, lo, hi);
   mesh::Workers workers(threads);
   // The slices across one axis hold disjoint cells, so they are filled in parallel; an axis
   // sees what the axes before it filled. Each chunk's cells are appended in chunk order.
   std::vector<std::vector<FilledCell>> by_chunk(static_cast<std::size_t>(workers.threads()));
   for (int axis = 0; axis < 3; ++axis) {
-    workers.parallel_chunks(lo[axis], hi[axis] + 1, [&](int first, int last, int chunk) {
+    workers.parallel_chunks(0, mask.dims[axis], [&](int first, int last, int chunk) {
       std::vector<FilledCell>& mine = by_chunk[static_cast<std::size_t>(chunk)];
+      std::vector<Run> runs;
       for (int s = first; s < last; ++s)
-        for (const auto& hole : slice_holes(Slice{chi, axis, s, lo, hi}, iso)) {
+        for (const auto& hole : slice_holes(mask, axis, s, runs)) {
           if (max_image(chi, image, hole) >= dark_below) continue;
           for (const Vec3i& c : hole) {
             const std::size_t at = chi.linear_index(c.x(), c.y(), c.z());
             mine.push_back({at, chi.f32()[at]});  // (outside: below iso < inside_value)
             chi.f32()[at] = inside_value;
+            mask.inside[mask.at(c - lo)] = 1;
           }
         }
     });

@@ -2,7 +2,11 @@
 #include <gtest/gtest.h>
 
 #include <Eigen/Geometry>
+#include <algorithm>
+#include <array>
 #include <cmath>
+#include <random>
+#include <vector>
 
 #include "reconstruct/reconstruct.h"
 
@@ -118,6 +122,86 @@ TEST(DarkTunnels, AHandleNoSliceClosesIsFilledAndTheNeedleStays) {
   EXPECT_EQ(s.topology.genus, 1);  // the needle's
   EXPECT_TRUE(s.topology.watertight);
   EXPECT_LT(volume::sample_mm(s.indicator, Vec3f(32, 32, 32)), 0.5f);  // on the needle
+}
+
+// The slices' holes the plain way: per axis in turn, per slice of the inside cells' box (grown by
+// one cell, clipped to the grid), a flood over the outside cells from each one not yet seen; a
+// region that never reaches the slice's edge is a hole and becomes inside. Returns the cells
+// filled, sorted.
+std::vector<std::size_t> flooded_holes(volume::Volume chi) {
+  const Vec3i n = chi.dims();
+  auto in = [&](const Vec3i& c) { return chi.f32()[chi.linear_index(c.x(), c.y(), c.z())] > 0.5f; };
+  Vec3i lo = n, hi = Vec3i::Constant(-1);
+  for (int k = 0; k < n.z(); ++k)
+    for (int j = 0; j < n.y(); ++j)
+      for (int i = 0; i < n.x(); ++i)
+        if (in(Vec3i(i, j, k))) {
+          lo = lo.cwiseMin(Vec3i(i, j, k));
+          hi = hi.cwiseMax(Vec3i(i, j, k));
+        }
+  lo = (lo - Vec3i::Ones()).cwiseMax(Vec3i::Zero());
+  hi = (hi + Vec3i::Ones()).cwiseMin(n - Vec3i::Ones());
+  std::vector<std::size_t> filled;
+  for (int axis = 0; axis < 3; ++axis) {
+    const int a = (axis + 1) % 3, b = (axis + 2) % 3;
+    for (int s = lo[axis]; s <= hi[axis]; ++s) {
+      std::vector<std::uint8_t> seen(chi.voxel_count(), 0);
+      for (int v0 = lo[b]; v0 <= hi[b]; ++v0)
+        for (int u0 = lo[a]; u0 <= hi[a]; ++u0) {
+          Vec3i c0;
+          c0[axis] = s, c0[a] = u0, c0[b] = v0;
+          if (in(c0) || seen[chi.linear_index(c0.x(), c0.y(), c0.z())]) continue;
+          std::vector<Vec3i> region, stack{c0};
+          seen[chi.linear_index(c0.x(), c0.y(), c0.z())] = 1;
+          bool edge = false;
+          while (!stack.empty()) {
+            const Vec3i c = stack.back();
+            stack.pop_back();
+            region.push_back(c);
+            edge = edge || c[a] == lo[a] || c[a] == hi[a] || c[b] == lo[b] || c[b] == hi[b];
+            for (const Vec3i& d : std::array<Vec3i, 4>{Vec3i::Unit(a), -Vec3i::Unit(a),
+                                                       Vec3i::Unit(b), -Vec3i::Unit(b)}) {
+              const Vec3i e = c + d;
+              if (e[a] < lo[a] || e[a] > hi[a] || e[b] < lo[b] || e[b] > hi[b] || in(e)) continue;
+              if (std::exchange(seen[chi.linear_index(e.x(), e.y(), e.z())], 1)) continue;
+              stack.push_back(e);
+            }
+          }
+          if (edge) continue;
+          for (const Vec3i& c : region) {
+            filled.push_back(chi.linear_index(c.x(), c.y(), c.z()));
+            chi.f32()[filled.back()] = 1.0f;
+          }
+        }
+    }
+  }
+  std::sort(filled.begin(), filled.end());
+  return filled;
+}
+
+TEST(DarkTunnels, FillsTheHolesOfEverySliceAndNothingElse) {
+  // Random cells inside (three in five) in a block that reaches the grid's edge on four sides
+  // (the box is clipped there, its rim not all outside): slices with many holes of every shape, some
+  // touching the box's edge, across all three axes.
+  volume::Volume chi(Vec3i(30, 26, 22), Vec3f(1, 1, 1), Vec3f(0, 0, 0),
+                     volume::VoxelType::Float32);
+  std::mt19937 random(7);
+  std::bernoulli_distribution inside(0.6);
+  for (int k = 3; k < 22; ++k)
+    for (int j = 0; j < 26; ++j)
+      for (int i = 0; i < 27; ++i) chi.f32()[chi.linear_index(i, j, k)] = inside(random);
+  const std::vector<std::size_t> expected = flooded_holes(chi);
+  ASSERT_GT(expected.size(), 100u) << "too few holes to compare";
+  const volume::Volume dark(chi.dims(), chi.spacing_mm(), chi.origin_mm(),
+                            volume::VoxelType::Float32);
+  for (const int threads : {1, 2}) {
+    volume::Volume filled_chi = chi;
+    std::vector<std::size_t> filled;
+    for (const FilledCell& c : fill_dark_tunnels(filled_chi, 0.5f, 1.0f, dark, 1.0f, threads))
+      filled.push_back(c.index);
+    std::sort(filled.begin(), filled.end());
+    EXPECT_EQ(filled, expected) << threads << " threads";
+  }
 }
 
 }  // namespace
