@@ -13,7 +13,6 @@
 #include "daemon/internal/coarse_start.h"
 #include "daemon/internal/metrics.h"
 #include "daemon/internal/opinions.h"
-#include "daemon/internal/shadow_gain.h"
 #include "daemon/internal/stages.h"
 #include "daemon/internal/target_image.h"
 #include "daemon/internal/track.h"
@@ -48,22 +47,6 @@ void count_stops(const std::vector<segment::StopReason>& stop, StopCounts& count
     }
 }
 
-// The pre-filter's sigma: the speckle's grain where it is clearly coarser than a voxel (at least
-// 1.75 voxels), else one voxel of the finest axis. The simple simulator's grain reads up to 1.62
-// voxels next to the needle, where smoothing at it closes the 64³ tunnel; real scan-converted
-// echo reads 2.1. A correlation longer than 3 voxels is structure filling the measured cube, not
-// a grain: one voxel too. docs/stopping.md has the measurements.
-constexpr float kMaxSpeckleGrainMm = 3.0f;
-
-float pre_filter_sigma_mm(const volume::Volume& input, float grain_mm) {
-  const float vox_mm = input.spacing_mm().minCoeff();
-  const float grain_vox = grain_mm / vox_mm;
-  // (Above 3 mm it is not a probe's speckle either, whose grain is its resolution cell, ~0.3-1.5
-  // mm: the 4.8× downsampled Philips volume reads 6.6 mm, and smoothing at that leaked.)
-  return grain_vox >= 1.75f && grain_vox <= 3.0f && grain_mm <= kMaxSpeckleGrainMm ? grain_mm
-                                                                                   : vox_mm;
-}
-
 }  // namespace
 
 const char* to_string(TargetPolarity target) {
@@ -91,49 +74,6 @@ PipelineResult run_pipeline(const volume::Volume& input, const Vec3f& seed_mm,
 }
 
 namespace internal {
-
-const std::vector<std::uint8_t>& smooth_stage(const volume::Volume& input, const Vec3f& seed_mm,
-                                              const PipelineConfig& config,
-                                              PipelineBuffers& buffers, PipelineResult& result) {
-  static const NoDataRegion kNone;
-  const auto t = Clock::now();
-  result.speckle_grain_mm = volume::speckle_grain_mm(input, seed_mm);
-  const float sigma_mm =
-      config.smooth_sigma_mm.value_or(pre_filter_sigma_mm(input, result.speckle_grain_mm));
-  result.smooth_sigma_mm = sigma_mm;
-  result.target = config.target == TargetPolarity::Auto
-                      ? internal::decide_polarity(input, seed_mm, result.speckle_grain_mm)
-                      : config.target;
-  // A probe's zeros outside its sector are no data, darker than any dark target: a wall for it.
-  const bool dark = result.target == TargetPolarity::Dark;
-  if (dark) internal::update_no_data(input, buffers.no_data);
-  const NoDataRegion& no_data = dark ? buffers.no_data : kNone;
-  const bool rewritten = internal::working_image(input, result.target, no_data, buffers.working);
-  if (rewritten && config.shadow_gain && no_data.apex_mm) {
-    const ShadowGain gain = compensate_shadows(buffers.working, no_data.mask, *no_data.apex_mm);
-    result.shadow_factor = gain.shadow_factor;
-    result.shadow_voxels = gain.voxels;
-  }
-  volume::smooth_gaussian(rewritten ? buffers.working : input, sigma_mm, buffers.smoothed);
-  result.timings.smooth_ms = ms_since(t);
-  return no_data.mask;
-}
-
-void smooth_again(const volume::Volume& input, const PipelineResult& first, float sigma_mm,
-                  PipelineBuffers& buffers, PipelineResult& result) {
-  static const NoDataRegion kNone;
-  const auto t = Clock::now();
-  result.speckle_grain_mm = first.speckle_grain_mm;
-  result.smooth_sigma_mm = sigma_mm;
-  result.target = first.target;
-  result.shadow_factor = first.shadow_factor;
-  result.shadow_voxels = first.shadow_voxels;
-  // (The no-data region is the first pass's for a dark target; a bright one has none.)
-  const bool dark = first.target == TargetPolarity::Dark;
-  const bool rewritten = needs_working_image(first.target, dark ? buffers.no_data : kNone);
-  volume::smooth_gaussian(rewritten ? buffers.working : input, sigma_mm, buffers.smoothed);
-  result.timings.smooth_ms = ms_since(t);
-}
 
 reconstruct::PoissonOptions poisson_options(const PipelineConfig& config,
                                             const volume::Volume& input) {
