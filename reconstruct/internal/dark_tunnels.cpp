@@ -86,8 +86,8 @@ std::vector<std::vector<Vec3i>> slice_holes(const InsideMask& mask, int axis, in
       const int first = c;
       while (c < n_along && !cell[c * step]) ++c;
       const int id = static_cast<int>(runs.size());
-      runs.push_back({row, first, c - 1, id,
-                      row == 0 || row == n_rows - 1 || first == 0 || c == n_along});
+      runs.push_back(
+          {row, first, c - 1, id, row == 0 || row == n_rows - 1 || first == 0 || c == n_along});
     }
     // Runs of the row before that overlap one of this row's (both lists are in order).
     for (std::size_t a = row_begin, b = this_row; a < this_row && b < runs.size();) {

@@ -181,10 +181,9 @@ std::vector<std::size_t> flooded_holes(volume::Volume chi) {
 
 TEST(DarkTunnels, FillsTheHolesOfEverySliceAndNothingElse) {
   // Random cells inside (three in five) in a block that reaches the grid's edge on four sides
-  // (the box is clipped there, its rim not all outside): slices with many holes of every shape, some
-  // touching the box's edge, across all three axes.
-  volume::Volume chi(Vec3i(30, 26, 22), Vec3f(1, 1, 1), Vec3f(0, 0, 0),
-                     volume::VoxelType::Float32);
+  // (the box is clipped there, its rim not all outside): slices with many holes of every shape,
+  // some touching the box's edge, across all three axes.
+  volume::Volume chi(Vec3i(30, 26, 22), Vec3f(1, 1, 1), Vec3f(0, 0, 0), volume::VoxelType::Float32);
   std::mt19937 random(7);
   std::bernoulli_distribution inside(0.6);
   for (int k = 3; k < 22; ++k)
