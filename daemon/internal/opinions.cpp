@@ -91,6 +91,13 @@ void fine_fit(const volume::Volume& input, const PipelineConfig& config, float f
   result.timings.reinflate_ms += ms_since(t);
 }
 
+// Whether the verdict will call `r` suspect from its balloon alone (balloon_reasons).
+bool suspect_balloon(const volume::Volume& input, const Vec3f& seed_mm, const PipelineResult& r) {
+  std::vector<std::string> why;
+  balloon_reasons(input, seed_mm, r, why);
+  return !why.empty();
+}
+
 }  // namespace
 
 std::string segment_opinions(const volume::Volume& input, const Vec3f& seed_mm,
@@ -105,30 +112,49 @@ std::string segment_opinions(const volume::Volume& input, const Vec3f& seed_mm,
   // speckle at contrast 0.5, and the level stop then ran as the second opinion.
   const bool level_first = switchable && ((warm && warm->level_stop) ||
                                           (known_target && known_target->stop_rule == "level"));
-  std::string error = segment_stages(input, seed_mm, with_level_stop(config, level_first), buffers,
-                                     warm, stop, result);
+  const PipelineConfig first_config = with_level_stop(config, level_first);
+  std::string error = balloon_step(seed_mm, first_config, buffers, warm, stop, result);
+  // A cold balloon the verdict calls suspect whatever its surface has that surface made only if
+  // the second opinion is not ok: an ok one wins over it anyway.
+  const bool later =
+      switchable && error.empty() && !result.warm_start && suspect_balloon(input, seed_mm, result);
+  if (error.empty() && !later)
+    error = surface_steps(input, seed_mm, first_config, buffers, warm, stop, result);
   if (!switchable || error == "stopped" || result.warm_start) return error;
-  judge(result, error);
-  judged = true;
-  // (At a pre-filter not the automatic one, as in the coarse retry, the blurred wall lies within
-  // the open patch's samples: it is not asked.)
-  if (result.ok && result.quality_ok &&
-      (config.smooth_sigma_mm || known_target ||
-       !(open_widely(buffers, config.balloon.threads, result) || thin(input, result))))
-    return error;
+  if (!later) {
+    judge(result, error);
+    judged = true;
+    // (At a pre-filter not the automatic one, as in the coarse retry, the blurred wall lies
+    // within the open patch's samples: it is not asked.)
+    if (result.ok && result.quality_ok &&
+        (config.smooth_sigma_mm || known_target ||
+         !(open_widely(buffers, config.balloon.threads, result) || thin(input, result))))
+      return error;
+  }
   PipelineResult other = smoothed_only;
   PipelineConfig other_config = with_level_stop(config, !level_first);
   // Against an ok first result a leak cannot win (sealed or rolled back, the verdict is suspect):
   // the other balloon ends at its first leak instead of sealing it (the 128³ cyst-needle's level
   // stop sealed 5 leaks along the needle's shadow in 1.4 s).
-  if (result.ok && result.quality_ok) other_config.balloon.max_leak_seals = 0;
+  if (!later && result.ok && result.quality_ok) other_config.balloon.max_leak_seals = 0;
   std::string other_error =
       segment_stages(input, seed_mm, other_config, buffers, nullptr, stop, other);
   result.second_opinion = true;
-  if (other_error == "stopped") return error;
+  if (other_error == "stopped") return later ? other_error : error;
   judge(other, other_error);
   other.second_opinion = true;
   other.start_reason = result.start_reason;  // (both cold: the first says why)
+  if (later) {
+    if (other.ok && other.quality_ok) {
+      judged = true;
+      result = std::move(other);
+      return other_error;
+    }
+    error = surface_steps(input, seed_mm, first_config, buffers, warm, stop, result);
+    if (error == "stopped") return error;
+    judge(result, error);
+    judged = true;
+  }
   if (other.ok && other.quality_ok && result.quality_ok)
     open_widely(buffers, config.balloon.threads, other);
   if (!better(other, result)) return error;

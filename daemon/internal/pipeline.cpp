@@ -250,15 +250,20 @@ bool trackable(const PipelineConfig& config, const WarmStart* warm) {
 
 namespace internal {
 
-std::string segment_stages(const volume::Volume& input, const Vec3f& seed_mm,
-                           const PipelineConfig& config, PipelineBuffers& buffers,
-                           const WarmStart* warm, const std::stop_token& stop,
-                           PipelineResult& result) {
+std::string balloon_step(const Vec3f& seed_mm, const PipelineConfig& config,
+                         PipelineBuffers& buffers, const WarmStart* warm,
+                         const std::stop_token& stop, PipelineResult& result) {
   result.stop_rule = config.balloon.level_stop_fraction > 0.0f ? "level" : "cost";
   const segment::BalloonResult balloon =
       balloon_stage(buffers, seed_mm, config, warm, stop, result);
   if (stop.stop_requested()) return "stopped";
-  if (!balloon.error.empty()) return "balloon: " + balloon.error;
+  return balloon.error.empty() ? "" : "balloon: " + balloon.error;
+}
+
+std::string surface_steps(const volume::Volume& input, const Vec3f& seed_mm,
+                          const PipelineConfig& config, PipelineBuffers& buffers,
+                          const WarmStart* warm, const std::stop_token& stop,
+                          PipelineResult& result) {
   reconstruct::SurfaceResult surface;
   std::string error =
       surface_stage(input, buffers.smoothed, seed_mm, config,
@@ -301,6 +306,14 @@ std::string segment_stages(const volume::Volume& input, const Vec3f& seed_mm,
     result.indicator = std::move(surface.indicator);
   }
   return stop.stop_requested() ? "stopped" : "";
+}
+
+std::string segment_stages(const volume::Volume& input, const Vec3f& seed_mm,
+                           const PipelineConfig& config, PipelineBuffers& buffers,
+                           const WarmStart* warm, const std::stop_token& stop,
+                           PipelineResult& result) {
+  std::string error = balloon_step(seed_mm, config, buffers, warm, stop, result);
+  return error.empty() ? surface_steps(input, seed_mm, config, buffers, warm, stop, result) : error;
 }
 
 }  // namespace internal

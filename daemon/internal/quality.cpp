@@ -152,11 +152,8 @@ float open_patch(const volume::Volume& smoothed, const segment::Mesh& surface, f
   return total_mm2 > 0.0 ? static_cast<float>(largest_mm2 / total_mm2) : -1.0f;
 }
 
-void quality_verdict(const volume::Volume& input, const volume::Volume& smoothed,
-                     const std::vector<std::uint8_t>& no_data, const Vec3f& seed_mm,
-                     PipelineResult& result) {
-  std::vector<std::string>& why = result.quality_reasons;
-  why.clear();
+void balloon_reasons(const volume::Volume& input, const Vec3f& seed_mm,
+                     const PipelineResult& result, std::vector<std::string>& why) {
   const float vox_mm = input.spacing_mm().minCoeff();
   if (result.balloon_stats.leaked) why.emplace_back("leak bound");
   // Sealed at a gap, the surface there is where the balloon was, not a wall; and a balloon that
@@ -169,6 +166,14 @@ void quality_verdict(const volume::Volume& input, const volume::Volume& smoothed
   if (balloon_n > 0 && result.stop_counts.iteration_limit > static_cast<int>(0.005 * balloon_n) &&
       result.stop_counts.iteration_limit > 0)
     why.emplace_back("iteration limit");
+}
+
+void quality_verdict(const volume::Volume& input, const volume::Volume& smoothed,
+                     const std::vector<std::uint8_t>& no_data, const Vec3f& seed_mm,
+                     PipelineResult& result) {
+  std::vector<std::string>& why = result.quality_reasons;
+  why.clear();
+  balloon_reasons(input, seed_mm, result, why);
   if (result.ok) {
     const double voxel_ml = input.spacing_mm().prod() * 1e-3;
     if (result.enclosed_volume_ml < kSmallestVoxels * voxel_ml)

@@ -46,6 +46,18 @@ std::optional<reconstruct::SurfaceResult> resurfaced(const volume::Volume& input
 void resurface_stage(const volume::Volume& input, const Vec3f& seed_mm,
                      const PipelineConfig& config, PipelineResult& result);
 
+/// segment_stages in its two steps, for the second opinion (opinions.h), which looks at a
+/// balloon before its surface is made: the balloon (warm, or cold) into `result`, returning the
+/// error, empty if there is one...
+std::string balloon_step(const Vec3f& seed_mm, const PipelineConfig& config,
+                         PipelineBuffers& buffers, const WarmStart* warm,
+                         const std::stop_token& stop, PipelineResult& result);
+/// ...then the rest from `result`'s balloon, returning the error, empty if there is a surface.
+std::string surface_steps(const volume::Volume& input, const Vec3f& seed_mm,
+                          const PipelineConfig& config, PipelineBuffers& buffers,
+                          const WarmStart* warm, const std::stop_token& stop,
+                          PipelineResult& result);
+
 /// §1-5 and the second pass, after the smoothing: the balloon (warm, or cold), the surface, the
 /// reinflation and the wall fit, the surface made again. Returns the error, empty if there is a
 /// surface.

@@ -5,6 +5,7 @@
 /// from acting as a darker target; plus the quality verdict on the result.
 
 #include <cstdint>
+#include <string>
 #include <vector>
 
 #include "daemon/pipeline.h"
@@ -70,5 +71,11 @@ constexpr int kMostHandles = 2;
 void quality_verdict(const volume::Volume& input, const volume::Volume& smoothed,
                      const std::vector<std::uint8_t>& no_data, const Vec3f& seed_mm,
                      PipelineResult& result);
+
+/// The verdict's reasons its balloon alone gives (the leak bound, a sealed leak, stalled near the
+/// seed, the iteration limit), appended to `why`: a result with one of them is suspect whatever
+/// its surface.
+void balloon_reasons(const volume::Volume& input, const Vec3f& seed_mm,
+                     const PipelineResult& result, std::vector<std::string>& why);
 
 }  // namespace sonomesh::daemon::internal
