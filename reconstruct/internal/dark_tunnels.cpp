@@ -34,9 +34,6 @@ struct InsideMask {
   std::size_t at(const Vec3i& d) const {  // d from the box's corner
     return (static_cast<std::size_t>(d.z()) * dims.y() + d.y()) * dims.x() + d.x();
   }
-  std::ptrdiff_t stride(int axis) const {
-    return axis == 0 ? 1 : axis == 1 ? dims.x() : static_cast<std::ptrdiff_t>(dims.x()) * dims.y();
-  }
 };
 
 // A run of outside cells along one row of a slice, and its union-find parent among the slice's
@@ -69,7 +66,7 @@ std::vector<std::vector<Vec3i>> slice_holes(const InsideMask& mask, int axis, in
                                             std::vector<Run>& runs) {
   const int along = axis == 0 ? 1 : 0, across = axis == 2 ? 1 : 2;
   const int n_along = mask.dims[along], n_rows = mask.dims[across];
-  const std::ptrdiff_t step = mask.stride(along);
+  const std::ptrdiff_t step = along == 0 ? 1 : mask.dims.x();
   runs.clear();
   std::size_t row_begin = 0;
   for (int row = 0; row < n_rows; ++row) {
