@@ -41,8 +41,9 @@ struct PipelineConfig {
   segment::BalloonOptions balloon;
   reconstruct::PoissonOptions poisson;
   /// Reconstruct on a grid of the volume's finest voxel spacing (overrides poisson.cell_mm), as
-  /// method.md §5 asks, finer where a thin feature needs it (poisson.min_feature_cells); false
-  /// keeps poisson.cell_mm.
+  /// method.md §5 asks, finer where a thin feature needs it (poisson.min_feature_cells); the
+  /// first reconstruction of a thick target up to 1.5 voxels when the wall fit and the resurface
+  /// follow (docs/tuning.md, "Reconstruction"). false keeps poisson.cell_mm.
   bool cell_from_voxel = true;
   /// The second, short balloon pass from the reconstructed surface back to the boundary
   /// (segment::reinflate): gives back what the reconstruction's smoothing takes from thin parts.

@@ -162,11 +162,33 @@ void close_false_tunnels(const volume::Volume& smoothed, const Vec3f& seed_mm, i
   (implausible ? result.tissue_columns_filled : result.dark_tunnels_closed) = closed;
 }
 
+// The first reconstruction's cell: coarser than the voxel for a thick target, whose thickness
+// 3V/A of the balloon (a ball's radius, 1.5 times a tube's) spans over kThickVox voxels, up to
+// kCoarsestCell voxels. That surface carries the topology to the reinflation and the wall fit;
+// the one returned is made again from the fitted surface (resurface_stage). A feature thinner
+// than kFeatureCells of the coarser cells (a needle's tunnel, a column of tissue) has the cell
+// back down to the voxel at most. kThickVox keeps a 96³ phantom's double torus (10 voxels) on
+// voxel cells: on 1.5-voxel cells it lost a tube.
+void coarser_for_thick(const segment::Mesh& balloon, float vox_mm,
+                       reconstruct::PoissonOptions& poisson) {
+  constexpr float kThickVox = 12.0f, kCoarsestCell = 1.5f, kFeatureCells = 4.0f;
+  const double area_mm2 = mesh::surface_area_mm2(balloon);
+  if (!(area_mm2 > 0.0)) return;
+  const double thickness_vox = 3e3 * mesh::enclosed_volume_ml(balloon) / area_mm2 / vox_mm;
+  const float scale =
+      std::clamp(static_cast<float>(thickness_vox) / kThickVox, 1.0f, kCoarsestCell);
+  if (scale <= 1.0f) return;
+  poisson.cell_mm *= scale;
+  if (poisson.min_feature_cells > 0.0f) return;  // (a configured search stands)
+  poisson.min_feature_cells = kFeatureCells;
+  poisson.min_cell_fraction = 1.0f / scale;
+}
+
 // §4-5: opening at the self-intersections, then Kazhdan's FFT reconstruction and marching cubes
-// on a grid of the volume's voxel size (finer where the opened balloon has a gap or solid too
-// thin for it: a needle's tunnel); then tunnels no wall explains filled (close_false_tunnels),
-// unless the genus is no higher than `known_genus` (a warm start's previous result). Returns the
-// error, empty if there is a surface.
+// on a grid of the volume's voxel size (coarser for a thick target: coarser_for_thick; finer where
+// the opened balloon has a gap or solid too thin for it: a needle's tunnel); then tunnels no wall
+// explains filled (close_false_tunnels), unless the genus is no higher than `known_genus` (a warm
+// start's previous result). Returns the error, empty if there is a surface.
 std::string surface_stage(const volume::Volume& input, const volume::Volume& smoothed,
                           const Vec3f& seed_mm, const PipelineConfig& config,
                           std::optional<int> known_genus, PipelineResult& result,
@@ -179,7 +201,9 @@ std::string surface_stage(const volume::Volume& input, const volume::Volume& smo
   if (samples.points.size() < kMinSamples)
     return "the balloon left only " + std::to_string(samples.points.size()) +
            " oriented points after the opening";
-  const reconstruct::PoissonOptions poisson = internal::poisson_options(config, input);
+  reconstruct::PoissonOptions poisson = internal::poisson_options(config, input);
+  if (config.cell_from_voxel && config.wall_fit && config.resurface)
+    coarser_for_thick(result.balloon, input.spacing_mm().minCoeff(), poisson);
   surface = reconstruct::reconstruct_surface(samples, seed_mm, poisson);
   if (!surface.mesh.triangles.empty()) {
     const int genus_before = surface.topology.genus;

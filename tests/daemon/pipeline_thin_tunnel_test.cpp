@@ -36,6 +36,26 @@ TEST_P(PipelineThinTunnel, CystNeedleAt64KeepsTheTunnel) {
 
 INSTANTIATE_TEST_SUITE_P(SpeckleSeeds, PipelineThinTunnel, ::testing::Values(1u, 2u, 3u, 4u));
 
+// A thick target is reconstructed first on cells coarser than its voxels, its surface made again
+// from the fitted one; a needle's tunnel through the cyst brings the cells back to the voxel.
+TEST(PipelineFirstCell, CoarserForAThickTargetTheVoxelForANeedlesTunnel) {
+  for (const char* name : {"sphere", "cyst-needle"}) {
+    const sim::Phantom phantom = sim::make_phantom({.phantom = name, .size_vox = 96});
+    const PipelineResult r = run_pipeline(phantom.image, phantom.seed_mm, PipelineConfig{});
+    ASSERT_TRUE(r.ok) << name << ": " << r.error;
+    const float vox_mm = phantom.image.spacing_mm().minCoeff();
+    if (phantom.genus == 0) {
+      EXPECT_GE(r.grid_cell_mm, 1.25f * vox_mm) << name;
+    } else {
+      EXPECT_LE(r.grid_cell_mm, vox_mm) << name;
+    }
+    EXPECT_TRUE(r.resurfaced) << name;
+    EXPECT_EQ(r.topology.genus, phantom.genus) << name;
+    ASSERT_TRUE(r.labels.has_value());
+    EXPECT_GE(internal::dice(*r.labels, phantom.truth), 0.97) << name;
+  }
+}
+
 // A dark cavity (a ball of 24 voxels' radius) crossed by three columns of tissue, 2.5 voxels in
 // radius, each from wall to wall beside the seed, and with `needle` a brighter needle through it
 // too: a ventricle with its trabeculae, a cyst with its needle. uint8, 72³ of 1 mm.
