@@ -1,5 +1,6 @@
 // A surface made again from its own samples (stages.h, resurfaced): the wall fit's vertices
 // through Kazhdan's reconstruction once more.
+#include <algorithm>
 #include <chrono>
 #include <optional>
 #include <utility>
@@ -11,8 +12,9 @@ namespace sonomesh::daemon::internal {
 namespace {
 
 // First on cells this many times the configured ones (half the cells, and the coarser grid
-// averages more of the speckle away), then on those where that lost the genus (a 2-voxel
-// needle's tunnel may close; at 1.5 times thin tubes were lost too: docs/stopping.md item 19).
+// averages more of the speckle away), or a thick target's coarser ones, then on the configured
+// ones where that lost the genus (a 2-voxel needle's tunnel may close; at 1.5 times for every
+// target thin tubes were lost too: docs/stopping.md item 19).
 constexpr float kCoarseCells = 1.25f;
 
 // `surface`, enclosing `has_ml`, moved along its normals by the one distance that makes it
@@ -31,9 +33,14 @@ void keep_volume(segment::Mesh& surface, double has_ml, double volume_ml) {
 std::optional<reconstruct::SurfaceResult> resurfaced(const volume::Volume& input,
                                                      const segment::Mesh& surface, int genus,
                                                      const Vec3f& seed_mm,
-                                                     const PipelineConfig& config) {
+                                                     const PipelineConfig& config,
+                                                     bool coarser_when_thick) {
   const mesh::PointCloud samples = mesh::oriented_samples(surface);
-  for (const float scale : {kCoarseCells, 1.0f}) {
+  const float coarse =
+      coarser_when_thick
+          ? std::max(kCoarseCells, thick_cell_scale(surface, input.spacing_mm().minCoeff()))
+          : kCoarseCells;
+  for (const float scale : {coarse, 1.0f}) {
     reconstruct::PoissonOptions scaled = poisson_options(config, input);
     scaled.cell_mm *= scale;
     reconstruct::SurfaceResult s = reconstruct::reconstruct_surface(samples, seed_mm, scaled);
@@ -50,7 +57,7 @@ void resurface_stage(const volume::Volume& input, const Vec3f& seed_mm,
   if (!config.resurface || !result.topology.manifold || result.topology.components != 1) return;
   const auto t = Clock::now();
   std::optional<reconstruct::SurfaceResult> again =
-      resurfaced(input, result.mesh, result.topology.genus, seed_mm, config);
+      resurfaced(input, result.mesh, result.topology.genus, seed_mm, config, true);
   if (again) {
     keep_volume(again->mesh, again->topology.volume_ml, result.enclosed_volume_ml);
     result.mesh = std::move(again->mesh);

@@ -32,13 +32,22 @@ void smooth_again(const volume::Volume& input, const PipelineResult& first, floa
 reconstruct::PoissonOptions poisson_options(const PipelineConfig& config,
                                             const volume::Volume& input);
 
+/// How much coarser than the voxel a reconstruction of `surface` (closed) may be: its thickness
+/// 3V/A (a ball's radius, 1.5 times a tube's) over 12 voxels, between 1 and 1.5. 12 keeps a 96³
+/// phantom's double torus (about 10 voxels) on voxel cells: on 1.5-voxel cells it lost a tube.
+float thick_cell_scale(const segment::Mesh& surface, float vox_mm);
+
 /// `surface` (closed, of `genus`) made again from its own oriented samples by Kazhdan's
-/// reconstruction, on cells 1.25 times the configured ones, then on those where that lost the
-/// genus: unset where both lost the seed, the genus or the one closed manifold component.
+/// reconstruction, on cells 1.25 times the configured ones (`coarser_when_thick`: or
+/// thick_cell_scale's, if coarser), then on the configured ones where that lost the genus: unset
+/// where both lost the seed, the genus or the one closed manifold component. (A tracked chain
+/// remakes each surface from the last: on the coarser cells a 96³ echo chain drifted 0.004 of
+/// Dice further off the wall over seven volumes.)
 std::optional<reconstruct::SurfaceResult> resurfaced(const volume::Volume& input,
                                                      const segment::Mesh& surface, int genus,
                                                      const Vec3f& seed_mm,
-                                                     const PipelineConfig& config);
+                                                     const PipelineConfig& config,
+                                                     bool coarser_when_thick = false);
 
 /// Beyond the paper, after the wall fit (PipelineConfig::resurface): the fitted surface
 /// `resurfaced`, moved along its normals to the fitted surface's volume, kept where that holds

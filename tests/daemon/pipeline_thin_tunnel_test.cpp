@@ -7,8 +7,10 @@
 #include <algorithm>
 #include <cmath>
 #include <string>
+#include <tuple>
 
 #include "daemon/internal/metrics.h"
+#include "daemon/internal/stages.h"
 #include "daemon/pipeline.h"
 #include "sim/sim.h"
 
@@ -35,6 +37,24 @@ TEST_P(PipelineThinTunnel, CystNeedleAt64KeepsTheTunnel) {
 }
 
 INSTANTIATE_TEST_SUITE_P(SpeckleSeeds, PipelineThinTunnel, ::testing::Values(1u, 2u, 3u, 4u));
+
+// The fitted surface is made again on cells 1.25 times the voxel, coarser for a thick target (a
+// 96³ sphere, 23 voxels thick), and not for a thin one (a 64³ double torus, 7).
+TEST(PipelineResurface, ThickTargetsOnCoarserCells) {
+  for (const auto& [name, size, coarsest] :
+       {std::tuple("sphere", 96, 1.5f), std::tuple("double-torus", 64, 1.25f)}) {
+    const sim::Phantom phantom = sim::make_phantom({.phantom = name, .size_vox = size});
+    const PipelineConfig config;
+    const PipelineResult r = run_pipeline(phantom.image, phantom.seed_mm, config);
+    ASSERT_TRUE(r.ok) << name << ": " << r.error;
+    const auto again =
+        internal::resurfaced(phantom.image, r.mesh, phantom.genus, phantom.seed_mm, config, true);
+    ASSERT_TRUE(again.has_value()) << name;
+    const float vox_mm = phantom.image.spacing_mm().minCoeff();
+    EXPECT_NEAR(again->cell_mm, coarsest * vox_mm, 0.01f * vox_mm) << name;
+    EXPECT_EQ(again->topology.genus, phantom.genus) << name;
+  }
+}
 
 // A thick target is reconstructed first on cells coarser than its voxels, its surface made again
 // from the fitted one; a needle's tunnel through the cyst brings the cells back to the voxel.
