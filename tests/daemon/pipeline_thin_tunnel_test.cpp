@@ -2,6 +2,7 @@
 // a reconstruction on the voxel grid keeps open (reconstruct/thin_feature_test.cpp), so the
 // pipeline only gets genus 1 if the reconstruction refines its grid for it. That refinement is
 // opt-in (PoissonOptions::min_feature_cells, off by default: it also keeps spurious handles).
+// Also the other way: a thick target's reconstructions on cells coarser than its voxels.
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -39,7 +40,7 @@ TEST_P(PipelineThinTunnel, CystNeedleAt64KeepsTheTunnel) {
 INSTANTIATE_TEST_SUITE_P(SpeckleSeeds, PipelineThinTunnel, ::testing::Values(1u, 2u, 3u, 4u));
 
 // The fitted surface is made again on cells 1.25 times the voxel, coarser for a thick target (a
-// 96³ sphere, 23 voxels thick), and not for a thin one (a 64³ double torus, 7).
+// 96³ sphere, about 23 voxels thick), and not for a thin one (a 64³ double torus, about 7).
 TEST(PipelineResurface, ThickTargetsOnCoarserCells) {
   for (const auto& [name, size, coarsest] :
        {std::tuple("sphere", 96, 1.5f), std::tuple("double-torus", 64, 1.25f)}) {
