@@ -36,8 +36,10 @@ std::optional<reconstruct::SurfaceResult> resurfaced(const volume::Volume& input
                                                      const PipelineConfig& config,
                                                      bool coarser_when_thick) {
   const mesh::PointCloud samples = mesh::oriented_samples(surface);
+  // (Configured cells, not the voxel's, are the user's: 1.25 times them, as the first
+  // reconstruction keeps them too.)
   const float coarse =
-      coarser_when_thick
+      coarser_when_thick && config.cell_from_voxel
           ? std::max(kCoarseCells, thick_cell_scale(surface, input.spacing_mm().minCoeff()))
           : kCoarseCells;
   for (const float scale : {coarse, 1.0f}) {

@@ -38,11 +38,11 @@ reconstruct::PoissonOptions poisson_options(const PipelineConfig& config,
 float thick_cell_scale(const segment::Mesh& surface, float vox_mm);
 
 /// `surface` (closed, of `genus`) made again from its own oriented samples by Kazhdan's
-/// reconstruction, on cells 1.25 times the configured ones (`coarser_when_thick`: or
-/// thick_cell_scale's, if coarser), then on the configured ones where that lost the genus: unset
-/// where both lost the seed, the genus or the one closed manifold component. (A tracked chain
-/// remakes each surface from the last: on the coarser cells a 96³ echo chain drifted 0.004 of
-/// Dice further off the wall over seven volumes.)
+/// reconstruction, on cells 1.25 times the configured ones (`coarser_when_thick` with
+/// `cell_from_voxel`: or thick_cell_scale's, if coarser), then on the configured ones where that
+/// lost the genus: unset where both lost the seed, the genus or the one closed manifold component.
+/// (A tracked chain remakes each surface from the last: on the coarser cells a 96³ echo chain
+/// drifted 0.004 of Dice further off the wall over seven volumes.)
 std::optional<reconstruct::SurfaceResult> resurfaced(const volume::Volume& input,
                                                      const segment::Mesh& surface, int genus,
                                                      const Vec3f& seed_mm,
