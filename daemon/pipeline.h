@@ -53,6 +53,11 @@ struct PipelineConfig {
   /// image averaged over the surface around it crosses half way to the wall.
   bool wall_fit = true;
   segment::WallFitOptions wall_fit_options;
+  /// After the wall fit, the fit once more on the image before its pre-filter (the working image:
+  /// polarity, no data and shadows as the balloon saw them), its profiles averaged over 5 rings:
+  /// the pre-filter blurs the wall along the normal as well as the speckle along the surface,
+  /// and the rings alone take the speckle (docs/stopping.md item 13).
+  bool fit_unsmoothed = true;
   /// Beyond the paper, after the wall fit: the fitted surface made again from its own samples by
   /// Kazhdan's reconstruction, which smooths away the speckle grains the fit followed (the same
   /// genus, the seed inside; else the fitted surface stays).
@@ -232,7 +237,9 @@ PipelineResult run_pipeline(const volume::Volume& input, const Vec3f& seed_mm,
 struct PipelineBuffers {
   volume::Volume smoothed;
   std::vector<volume::Volume> pyramid;  // the coarse start's grids, an eighth of the one below
-  volume::Volume working;               // the image smoothed, where it is not the input itself
+  // The image smoothed, where it is not the input itself; else, once the unsmoothed fit ran,
+  // the input as Float32 (PipelineConfig::fit_unsmoothed).
+  volume::Volume working;
   // A probe's no-data region (zeros outside its sector) and the plan of the working image's fill
   // over it: the same in every volume of a probe, so flooded again only when the zeros moved.
   struct NoDataRegion {

@@ -177,6 +177,8 @@ void coarse_retry(const volume::Volume& input, const Vec3f& seed_mm, const Pipel
   coarse.smooth_sigma_mm =
       coarse_sigma_mm(input, result.speckle_grain_mm, config.coarse_retry_grains);
   coarse.target = result.target;  // (decided once, by the first pass)
+  // (Its wall lies where the fine fit takes it, not at the coarse image's volume.)
+  coarse.fit_unsmoothed = false;
   PipelineResult other;
   smooth_again(input, result, *coarse.smooth_sigma_mm, buffers, other);
   bool judged = false;

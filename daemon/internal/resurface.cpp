@@ -17,9 +17,8 @@ namespace {
 // target thin tubes were lost too: docs/stopping.md item 19).
 constexpr float kCoarseCells = 1.25f;
 
-// `surface`, enclosing `has_ml`, moved along its normals by the one distance that makes it
-// enclose `volume_ml`: the reconstruction's blur of the indicator takes a curved wall in, where
-// the wall fit had placed it.
+}  // namespace
+
 void keep_volume(segment::Mesh& surface, double has_ml, double volume_ml) {
   const double area_mm2 = mesh::surface_area_mm2(surface);
   if (!(area_mm2 > 0.0)) return;
@@ -27,8 +26,6 @@ void keep_volume(segment::Mesh& surface, double has_ml, double volume_ml) {
   const std::vector<Vec3f> normal = mesh::vertex_normals(surface);
   for (std::size_t v = 0; v < normal.size(); ++v) surface.vertices[v] += out_mm * normal[v];
 }
-
-}  // namespace
 
 std::optional<reconstruct::SurfaceResult> resurfaced(const volume::Volume& input,
                                                      const segment::Mesh& surface, int genus,
@@ -61,6 +58,7 @@ void resurface_stage(const volume::Volume& input, const Vec3f& seed_mm,
   std::optional<reconstruct::SurfaceResult> again =
       resurfaced(input, result.mesh, result.topology.genus, seed_mm, config, true);
   if (again) {
+    // (The reconstruction's blur of the indicator takes a curved wall in, where the fits put it.)
     keep_volume(again->mesh, again->topology.volume_ml, result.enclosed_volume_ml);
     result.mesh = std::move(again->mesh);
     result.topology = again->topology;

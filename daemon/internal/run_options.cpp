@@ -213,6 +213,8 @@ std::vector<OptionSpec> pipeline_options() {
                   "second pass length", REF(pipeline.reinflate_pass.max_iterations)));
   o.push_back(flag("pipeline", "wall_fit", "vertices to the surface-averaged wall crossing",
                    REF(pipeline.wall_fit)));
+  o.push_back(flag("pipeline", "fit_unsmoothed", "the wall fit again on the unsmoothed image",
+                   REF(pipeline.fit_unsmoothed)));
   o.push_back(flag("pipeline", "resurface", "rebuild the fitted surface", REF(pipeline.resurface)));
   o.push_back(flag("pipeline", "cell_from_voxel", "true: poisson.cell_mm = the finest spacing",
                    REF(pipeline.cell_from_voxel)));

@@ -51,20 +51,35 @@ const std::vector<std::uint8_t>& smooth_stage(const volume::Volume& input, const
   return no_data.mask;
 }
 
+namespace {
+
+// Whether smooth_stage smoothed buffers.working for `first` rather than the input itself.
+bool rewritten(const PipelineResult& first, const PipelineBuffers& buffers) {
+  static const NoDataRegion kNone;
+  // (The no-data region is the first pass's for a dark target; a bright one has none.)
+  const bool dark = first.target == TargetPolarity::Dark;
+  return needs_working_image(first.target, dark ? buffers.no_data : kNone);
+}
+
+}  // namespace
+
 void smooth_again(const volume::Volume& input, const PipelineResult& first, float sigma_mm,
                   PipelineBuffers& buffers, PipelineResult& result) {
-  static const NoDataRegion kNone;
   const auto t = Clock::now();
   result.speckle_grain_mm = first.speckle_grain_mm;
   result.smooth_sigma_mm = sigma_mm;
   result.target = first.target;
   result.shadow_factor = first.shadow_factor;
   result.shadow_voxels = first.shadow_voxels;
-  // (The no-data region is the first pass's for a dark target; a bright one has none.)
-  const bool dark = first.target == TargetPolarity::Dark;
-  const bool rewritten = needs_working_image(first.target, dark ? buffers.no_data : kNone);
-  volume::smooth_gaussian(rewritten ? buffers.working : input, sigma_mm, buffers.smoothed);
+  volume::smooth_gaussian(rewritten(first, buffers) ? buffers.working : input, sigma_mm,
+                          buffers.smoothed);
   result.timings.smooth_ms = ms_since(t);
+}
+
+const volume::Volume& unsmoothed_image(const volume::Volume& input, const PipelineResult& first,
+                                       PipelineBuffers& buffers) {
+  if (!rewritten(first, buffers)) copy_as_float32(input, buffers.working);
+  return buffers.working;
 }
 
 }  // namespace sonomesh::daemon::internal

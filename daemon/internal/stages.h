@@ -27,6 +27,12 @@ const std::vector<std::uint8_t>& smooth_stage(const volume::Volume& input, const
 void smooth_again(const volume::Volume& input, const PipelineResult& first, float sigma_mm,
                   PipelineBuffers& buffers, PipelineResult& result);
 
+/// The image smooth_stage smoothed for `first` (polarity, no-data fill, lifted shadow), before
+/// its pre-filter, as Float32: buffers.working, which takes a copy of the input where the input
+/// was smoothed as it is.
+const volume::Volume& unsmoothed_image(const volume::Volume& input, const PipelineResult& first,
+                                       PipelineBuffers& buffers);
+
 /// The reconstruction's options for `input`: the configured ones, on cells of its finest spacing
 /// when `config.cell_from_voxel`.
 reconstruct::PoissonOptions poisson_options(const PipelineConfig& config,
@@ -48,6 +54,10 @@ std::optional<reconstruct::SurfaceResult> resurfaced(const volume::Volume& input
                                                      const Vec3f& seed_mm,
                                                      const PipelineConfig& config,
                                                      bool coarser_when_thick = false);
+
+/// `surface`, enclosing `has_ml`, moved along its normals (mesh::vertex_normals) by the one
+/// distance that makes it enclose `volume_ml`.
+void keep_volume(segment::Mesh& surface, double has_ml, double volume_ml);
 
 /// Beyond the paper, after the wall fit (PipelineConfig::resurface): the fitted surface
 /// `resurfaced`, moved along its normals to the fitted surface's volume, kept where that holds

@@ -259,10 +259,7 @@ bool needs_working_image(TargetPolarity target, const NoDataRegion& no_data) {
   return target == TargetPolarity::Bright || !no_data.mask.empty();
 }
 
-bool working_image(const Volume& input, TargetPolarity target, const NoDataRegion& no_data,
-                   Volume& out) {
-  if (!needs_working_image(target, no_data)) return false;
-  const bool bright = target == TargetPolarity::Bright;
+void copy_as_float32(const Volume& input, Volume& out) {
   // (A buffer of the right size is kept: a fresh one is zero-filled first, then written again.)
   if (out.type() != volume::VoxelType::Float32 || out.dims() != input.dims() ||
       out.spacing_mm() != input.spacing_mm())
@@ -271,6 +268,14 @@ bool working_image(const Volume& input, TargetPolarity target, const NoDataRegio
   out.set_direction(input.direction());
   std::vector<float>& v = out.f32();
   with_voxels(input, [&](const auto& in) { std::copy(in.begin(), in.end(), v.begin()); });
+}
+
+bool working_image(const Volume& input, TargetPolarity target, const NoDataRegion& no_data,
+                   Volume& out) {
+  if (!needs_working_image(target, no_data)) return false;
+  const bool bright = target == TargetPolarity::Bright;
+  copy_as_float32(input, out);
+  std::vector<float>& v = out.f32();
   if (bright) {
     // I' = max − I: the brightest voxel becomes black, a bright organ a dark one in brighter
     // surroundings, and the balloon's rules (relative cost, tissue level) apply unchanged.

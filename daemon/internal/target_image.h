@@ -35,6 +35,9 @@ bool update_no_data(const volume::Volume& input, NoDataRegion& region);
 /// region) rather than leaving it as it is.
 bool needs_working_image(TargetPolarity target, const NoDataRegion& no_data);
 
+/// `input` as Float32 in `out` (its buffer kept when it has the size; origin and direction set).
+void copy_as_float32(const volume::Volume& input, volume::Volume& out);
+
 /// What the balloon segments as a dark target, as Float32 in `out` (its buffer kept when it has
 /// the size): the input inverted (max − I) for a bright target; for a dark one with a no-data
 /// region, each voxel of the region within 16 voxels of the data given the value of the data

