@@ -235,30 +235,12 @@ std::string surface_stage(const volume::Volume& input, const volume::Volume& smo
   return {};
 }
 
-// The wall fit once more, on the image before its pre-filter and over more rings
-// (PipelineConfig::fit_unsmoothed), then moved along the normals back to the volume the fit on
-// the smoothed image enclosed: the pre-filter blurs a wall along the normal, which the rings
-// alone do not, so the unsmoothed image gives the wall's shape; but its speckle lifts the level
-// ahead of a vertex and moves the crossing half way to it outward, so the smoothed image gives
-// where the wall lies on average (docs/stopping.md item 13).
-constexpr int kUnsmoothedFitRings = 5;
-
-void fit_unsmoothed(const volume::Volume& input, PipelineBuffers& buffers,
-                    const PipelineConfig& config, PipelineResult& result) {
-  const double fitted_ml = reconstruct::enclosed_volume_ml(result.mesh);
-  segment::WallFitOptions options = config.wall_fit_options;
-  options.rings = kUnsmoothedFitRings;
-  result.mesh =
-      segment::fit_to_wall(internal::unsmoothed_image(input, result, buffers), result.mesh,
-                           result.balloon_stats, options, config.balloon.threads);
-  internal::keep_volume(result.mesh, reconstruct::enclosed_volume_ml(result.mesh), fitted_ml);
-}
-
 // Beyond the paper: the second balloon pass from the reconstruction back to the wall, then the
 // wall fit (segment::fit_to_wall), which places each vertex where the image averaged over the
 // surface around it crosses half way to the wall: a balloon vertex stops on the first speckle
-// grain that reaches its stop level, so the pass alone ends short of the wall. Both move vertices
-// only, so the topology's counts stay; the enclosed volume is measured again. The pass needs a
+// grain that reaches its stop level, so the pass alone ends short of the wall; then the fit on the
+// unsmoothed image (internal::fit_unsmoothed). They move vertices only, so the topology's counts
+// stay; the enclosed volume is measured again. The pass needs a
 // closed manifold (its precondition): a surface that is not one is kept as reconstructed.
 void reinflate_stage(const volume::Volume& input, PipelineBuffers& buffers,
                      const PipelineConfig& config, const std::stop_token& stop,
@@ -275,7 +257,8 @@ void reinflate_stage(const volume::Volume& input, PipelineBuffers& buffers,
   if (config.wall_fit)
     result.mesh = segment::fit_to_wall(buffers.smoothed, result.mesh, result.balloon_stats,
                                        config.wall_fit_options, config.balloon.threads);
-  if (config.wall_fit && config.fit_unsmoothed) fit_unsmoothed(input, buffers, config, result);
+  if (config.wall_fit && config.fit_unsmoothed)
+    internal::fit_unsmoothed(input, buffers, config, result);
   result.timings.reinflate_ms = ms_since(t);
   result.topology.volume_ml = reconstruct::enclosed_volume_ml(result.mesh);
   result.enclosed_volume_ml = result.topology.volume_ml;

@@ -1,5 +1,6 @@
-// A surface made again from its own samples (stages.h, resurfaced): the wall fit's vertices
-// through Kazhdan's reconstruction once more.
+// The fitted surface's last steps (stages.h): the fit once more on the unsmoothed image at the
+// fitted volume (fit_unsmoothed), and the surface made again from its own samples (resurfaced),
+// the wall fit's vertices through Kazhdan's reconstruction once more.
 #include <algorithm>
 #include <chrono>
 #include <optional>
@@ -25,6 +26,19 @@ void keep_volume(segment::Mesh& surface, double has_ml, double volume_ml) {
   const auto out_mm = static_cast<float>((volume_ml - has_ml) * 1e3 / area_mm2);
   const std::vector<Vec3f> normal = mesh::vertex_normals(surface);
   for (std::size_t v = 0; v < normal.size(); ++v) surface.vertices[v] += out_mm * normal[v];
+}
+
+// Over more rings than the fit on the smoothed image: the unsmoothed image's speckle is finer.
+constexpr int kUnsmoothedFitRings = 5;
+
+void fit_unsmoothed(const volume::Volume& input, PipelineBuffers& buffers,
+                    const PipelineConfig& config, PipelineResult& result) {
+  const double fitted_ml = reconstruct::enclosed_volume_ml(result.mesh);
+  segment::WallFitOptions options = config.wall_fit_options;
+  options.rings = kUnsmoothedFitRings;
+  result.mesh = segment::fit_to_wall(unsmoothed_image(input, result, buffers), result.mesh,
+                                     result.balloon_stats, options, config.balloon.threads);
+  keep_volume(result.mesh, reconstruct::enclosed_volume_ml(result.mesh), fitted_ml);
 }
 
 std::optional<reconstruct::SurfaceResult> resurfaced(const volume::Volume& input,

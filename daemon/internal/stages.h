@@ -59,6 +59,15 @@ std::optional<reconstruct::SurfaceResult> resurfaced(const volume::Volume& input
 /// distance that makes it enclose `volume_ml`.
 void keep_volume(segment::Mesh& surface, double has_ml, double volume_ml);
 
+/// Beyond the paper, after the wall fit (PipelineConfig::fit_unsmoothed): `result`'s surface
+/// fitted once more, on the unsmoothed image and over more rings, then moved along its normals
+/// back to the volume it enclosed. The pre-filter blurs a wall along the normal, which the rings
+/// alone do not, so the unsmoothed image gives the wall's shape; but its speckle lifts the level
+/// ahead of a vertex and moves the crossing half way to it outward, so the smoothed image gives
+/// where the wall lies on average (docs/stopping.md item 13).
+void fit_unsmoothed(const volume::Volume& input, PipelineBuffers& buffers,
+                    const PipelineConfig& config, PipelineResult& result);
+
 /// Beyond the paper, after the wall fit (PipelineConfig::resurface): the fitted surface
 /// `resurfaced`, moved along its normals to the fitted surface's volume, kept where that holds
 /// (PipelineResult::resurfaced).
