@@ -54,9 +54,10 @@ struct PipelineConfig {
   bool wall_fit = true;
   segment::WallFitOptions wall_fit_options;
   /// After the wall fit, the fit once more on the image before its pre-filter (the working image:
-  /// polarity, no data and shadows as the balloon saw them), its profiles averaged over 5 rings:
-  /// the pre-filter blurs the wall along the normal as well as the speckle along the surface,
-  /// and the rings alone take the speckle (docs/stopping.md item 13).
+  /// polarity, no data and shadows as the balloon saw them), its profiles averaged over 5 rings,
+  /// then moved back to the volume the wall fit enclosed: the pre-filter blurs the wall along the
+  /// normal as well as the speckle along the surface, the rings take the speckle only
+  /// (docs/stopping.md item 13). Not in the coarse retry, whose fine fit follows.
   bool fit_unsmoothed = true;
   /// Beyond the paper, after the wall fit: the fitted surface made again from its own samples by
   /// Kazhdan's reconstruction, which smooths away the speckle grains the fit followed (the same

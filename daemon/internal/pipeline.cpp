@@ -240,8 +240,8 @@ std::string surface_stage(const volume::Volume& input, const volume::Volume& smo
 // surface around it crosses half way to the wall: a balloon vertex stops on the first speckle
 // grain that reaches its stop level, so the pass alone ends short of the wall; then the fit on the
 // unsmoothed image (internal::fit_unsmoothed). They move vertices only, so the topology's counts
-// stay; the enclosed volume is measured again. The pass needs a
-// closed manifold (its precondition): a surface that is not one is kept as reconstructed.
+// stay; the enclosed volume is measured again. The pass needs a closed manifold (its
+// precondition): a surface that is not one is kept as reconstructed.
 void reinflate_stage(const volume::Volume& input, PipelineBuffers& buffers,
                      const PipelineConfig& config, const std::stop_token& stop,
                      PipelineResult& result) {
