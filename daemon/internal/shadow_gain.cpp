@@ -8,6 +8,8 @@
 #include <limits>
 #include <map>
 
+#include "mesh/parallel.h"
+
 namespace sonomesh::daemon::internal {
 namespace {
 
@@ -48,21 +50,31 @@ SectorLevels sector_levels(const Volume& image, const std::vector<std::uint8_t>&
 
 // 1 for each voxel over `level` whose 7-voxel cross (it and its face neighbours) averages over it
 // too; 0 on the volume's faces. (The cross, not the 3×3×3 cube: a biopsy needle a voxel or so
-// thick fills too little of the cube.)
-std::vector<std::uint8_t> bright_mask(const Volume& image, float level) {
+// thick fills too little of the cube.) `ones` receives those voxels in linear order: a few
+// percent of the volume, which the clusters then take without scanning the rest.
+std::vector<std::uint8_t> bright_mask(const Volume& image, float level, int threads,
+                                      std::vector<std::size_t>& ones) {
   const Vec3i d = image.dims();
   const std::vector<float>& v = image.f32();
   const std::ptrdiff_t nx = d.x(), nxy = nx * d.y();
   std::vector<std::uint8_t> mask(v.size(), 0);
-  for (int k = 1; k + 1 < d.z(); ++k)
-    for (int j = 1; j + 1 < d.y(); ++j)
-      for (int i = 1; i + 1 < d.x(); ++i) {
-        const std::ptrdiff_t at = k * nxy + j * nx + i;
-        if (v[at] <= level) continue;
-        const float sum =
-            v[at] + v[at - 1] + v[at + 1] + v[at - nx] + v[at + nx] + v[at - nxy] + v[at + nxy];
-        mask[at] = sum > 7.0f * level ? 1 : 0;
-      }
+  std::vector<std::vector<std::size_t>> found(static_cast<std::size_t>(threads));
+  mesh::parallel_chunks(1, d.z() - 1, static_cast<int>(found.size()), [&](int k0, int k1, int c) {
+    for (int k = k0; k < k1; ++k)
+      for (int j = 1; j + 1 < d.y(); ++j)
+        for (int i = 1; i + 1 < d.x(); ++i) {
+          const std::ptrdiff_t at = k * nxy + j * nx + i;
+          if (v[at] <= level) continue;
+          const float sum =
+              v[at] + v[at - 1] + v[at + 1] + v[at - nx] + v[at + nx] + v[at - nxy] + v[at + nxy];
+          if (sum <= 7.0f * level) continue;
+          mask[at] = 1;
+          found[c].push_back(static_cast<std::size_t>(at));
+        }
+  });
+  ones.clear();
+  for (const std::vector<std::size_t>& chunk : found)
+    ones.insert(ones.end(), chunk.begin(), chunk.end());
   return mask;
 }
 
@@ -317,18 +329,23 @@ std::pair<Vec3i, Vec3i> shadow_box(const Beams& beams, const std::vector<std::si
 // Multiplies every data voxel in the casters' shadow by `lift` (less on its edge); counts them
 // into `lifted`.
 void lift_shadow(const Beams& beams, const std::vector<std::size_t>& casters, float lift,
-                 Volume& image, std::size_t& lifted) {
+                 int threads, Volume& image, std::size_t& lifted) {
   const ShadowMap shadow(beams, casters);
   const auto [from, to] = shadow_box(beams, casters);
   std::vector<float>& v = image.f32();
-  for (int k = from.z(); k <= to.z(); ++k)
-    for (int j = from.y(); j <= to.y(); ++j)
-      for (int i = from.x(); i <= to.x(); ++i) {
-        const std::size_t at = image.linear_index(i, j, k);
-        if (beams.no_data[at]) continue;
-        const float depth = shadow.depth_in(image.index_to_mm(Vec3f(i, j, k)));
-        if (depth > 0.0f) v[at] *= 1.0f + (lift - 1.0f) * depth, ++lifted;
-      }
+  std::vector<std::size_t> counts(static_cast<std::size_t>(threads), 0);
+  mesh::parallel_chunks(
+      from.z(), to.z() + 1, static_cast<int>(counts.size()), [&](int k0, int k1, int c) {
+        for (int k = k0; k < k1; ++k)
+          for (int j = from.y(); j <= to.y(); ++j)
+            for (int i = from.x(); i <= to.x(); ++i) {
+              const std::size_t at = image.linear_index(i, j, k);
+              if (beams.no_data[at]) continue;
+              const float depth = shadow.depth_in(image.index_to_mm(Vec3f(i, j, k)));
+              if (depth > 0.0f) v[at] *= 1.0f + (lift - 1.0f) * depth, ++counts[c];
+            }
+      });
+  for (const std::size_t n : counts) lifted += n;
 }
 
 // The parts of a cluster (`length_vox` its longest side) that cast, their ratios added to
@@ -361,6 +378,38 @@ std::vector<std::vector<std::size_t>> casting_parts(const Beams& beams,
   return parts;
 }
 
+// The casters among the mask's clusters (`ones` its voxels, each marked 2 as its cluster is
+// taken), their shadow ratios added to `ratios`, both in the clusters' order whatever the threads
+// did. Only clusters of kMinCasters voxels and kMinLengthVox or more are judged (a needle is a
+// line, a speckle grain or a clutter blob short): about 40 on a 128³ echo volume, most the near
+// field's clutter.
+std::vector<std::size_t> find_casters(const Beams& beams, const std::vector<std::size_t>& ones,
+                                      int threads, std::vector<std::uint8_t>& bright,
+                                      std::vector<float>& ratios) {
+  const Vec3i d = beams.image.dims();
+  std::vector<std::pair<std::vector<std::size_t>, int>> lines;  // voxels, longest side
+  std::vector<std::size_t> cluster;
+  for (const std::size_t at : ones) {
+    if (bright[at] != 1) continue;  // (taken with an earlier cluster)
+    take_cluster(d, at, bright, cluster);
+    if (cluster.size() < kMinCasters) continue;
+    if (const int length_vox = longest_side_vox(d, cluster); length_vox >= kMinLengthVox)
+      lines.emplace_back(cluster, length_vox);
+  }
+  std::vector<std::vector<std::vector<std::size_t>>> parts(lines.size());
+  std::vector<std::vector<float>> found(lines.size());
+  mesh::Workers(threads).parallel_for(lines.size(), 1, [&](std::size_t b, std::size_t e) {
+    for (std::size_t c = b; c < e; ++c)
+      parts[c] = casting_parts(beams, lines[c].first, lines[c].second, bright, found[c]);
+  });
+  std::vector<std::size_t> casters;
+  for (std::size_t c = 0; c < lines.size(); ++c) {
+    ratios.insert(ratios.end(), found[c].begin(), found[c].end());
+    for (const auto& part : parts[c]) casters.insert(casters.end(), part.begin(), part.end());
+  }
+  return casters;
+}
+
 }  // namespace
 
 float quantile(std::vector<float> v, float q) {
@@ -373,7 +422,7 @@ float quantile(std::vector<float> v, float q) {
 // One factor for the volume, the casters' median: a single caster's ratio varies with the speckle
 // along its beam (the lower quartile over-lifted and made columns of lifted speckle).
 ShadowGain compensate_shadows(Volume& image, const std::vector<std::uint8_t>& no_data,
-                              const Vec3f& apex_mm) {
+                              const Vec3f& apex_mm, int threads) {
   ShadowGain gain;
   if (no_data.empty() || image.type() != volume::VoxelType::Float32) return gain;
   const SectorLevels levels = sector_levels(image, no_data);
@@ -382,23 +431,15 @@ ShadowGain compensate_shadows(Volume& image, const std::vector<std::uint8_t>& no
   const float level = std::max(kCasterLevel * levels.median, levels.p90);
   if (!(level > 0.0f)) return gain;
   const Beams beams{image, no_data, apex_mm, image.spacing_mm().minCoeff(), levels.p90};
-  std::vector<std::uint8_t> bright = bright_mask(image, level);
-  std::vector<std::size_t> cluster, casters;
+  std::vector<std::size_t> ones;
+  threads = mesh::Workers::resolved(threads);
+  std::vector<std::uint8_t> bright = bright_mask(image, level, threads, ones);
   std::vector<float> ratios;
-  for (std::size_t at = 0; at < bright.size(); ++at) {
-    if (bright[at] != 1) continue;
-    take_cluster(image.dims(), at, bright, cluster);
-    // A needle is a line of casters; a speckle grain or a clutter blob is short.
-    if (cluster.size() < kMinCasters) continue;
-    const int length_vox = longest_side_vox(image.dims(), cluster);
-    if (length_vox < kMinLengthVox) continue;
-    for (const auto& part : casting_parts(beams, cluster, length_vox, bright, ratios))
-      casters.insert(casters.end(), part.begin(), part.end());
-  }
+  const std::vector<std::size_t> casters = find_casters(beams, ones, threads, bright, ratios);
   if (casters.empty()) return gain;
   gain.casters = static_cast<int>(casters.size());
   gain.shadow_factor = std::max(0.1f, quantile(ratios, 0.5f));
-  lift_shadow(beams, casters, 1.0f / gain.shadow_factor, image, gain.voxels);
+  lift_shadow(beams, casters, 1.0f / gain.shadow_factor, threads, image, gain.voxels);
   return gain;
 }
 

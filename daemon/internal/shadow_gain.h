@@ -37,8 +37,9 @@ struct ShadowGain {
 /// beam, 3-20 voxels beyond it, reads under 0.6 of the same mean 6 voxels across the beam on
 /// both sides; a cluster casts when 20 of its far side and a third of those tested do; the
 /// factor is their median. The shadow is every voxel whose beam from the apex passed a caster
-/// more than a voxel before it (less on its edge).
+/// more than a voxel before it (less on its edge). `threads` as segment::BalloonOptions::threads;
+/// the result is the same for any count.
 ShadowGain compensate_shadows(volume::Volume& image, const std::vector<std::uint8_t>& no_data,
-                              const volume::Vec3f& apex_mm);
+                              const volume::Vec3f& apex_mm, int threads = 0);
 
 }  // namespace sonomesh::daemon::internal

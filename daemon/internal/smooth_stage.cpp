@@ -42,7 +42,8 @@ const std::vector<std::uint8_t>& smooth_stage(const volume::Volume& input, const
   const NoDataRegion& no_data = dark ? buffers.no_data : kNone;
   const bool rewritten = internal::working_image(input, result.target, no_data, buffers.working);
   if (rewritten && config.shadow_gain && no_data.apex_mm) {
-    const ShadowGain gain = compensate_shadows(buffers.working, no_data.mask, *no_data.apex_mm);
+    const ShadowGain gain =
+        compensate_shadows(buffers.working, no_data.mask, *no_data.apex_mm, config.balloon.threads);
     result.shadow_factor = gain.shadow_factor;
     result.shadow_voxels = gain.voxels;
   }

@@ -167,6 +167,8 @@ PipelineResult carried(const PipelineResult& previous, const PipelineResult& smo
   r.indicator.reset();
   r.speckle_grain_mm = smoothed.speckle_grain_mm;
   r.smooth_sigma_mm = smoothed.smooth_sigma_mm;
+  r.shadow_factor = smoothed.shadow_factor;
+  r.shadow_voxels = smoothed.shadow_voxels;
   r.timings = StageTimings{.smooth_ms = smoothed.timings.smooth_ms};
   r.balloon_iterations = 0;
   r.second_opinion = false;

@@ -130,5 +130,21 @@ TEST(ShadowGain, FindsNoShadowWithoutANeedle) {
   }
 }
 
+// The search and the lift run on several threads; what they find and lift may not depend on it.
+TEST(ShadowGain, OneThreadAndTwoLiftTheSame) {
+  const sim::Phantom phantom = sim::make_phantom(echo_spec("cyst-needle", 64, 0.5f));
+  Working one = working(phantom.image), two = working(phantom.image);
+  ASSERT_TRUE(one.region.apex_mm);
+  const internal::ShadowGain a =
+      internal::compensate_shadows(one.image, one.region.mask, *one.region.apex_mm, 1);
+  const internal::ShadowGain b =
+      internal::compensate_shadows(two.image, two.region.mask, *two.region.apex_mm, 2);
+  EXPECT_GT(a.casters, 0);
+  EXPECT_EQ(a.casters, b.casters);
+  EXPECT_EQ(a.voxels, b.voxels);
+  EXPECT_EQ(a.shadow_factor, b.shadow_factor);
+  EXPECT_EQ(one.image.f32(), two.image.f32());
+}
+
 }  // namespace
 }  // namespace sonomesh::daemon
