@@ -244,6 +244,8 @@ TEST(EchoPipeline, CoarseRetryGetsTheGenusRightAtContrastPointThree) {
 // cyst-needles suspect for the seal along the needle's shadow, the rest ok. The 0.93 is
 // not met by the double tori (0.920, 0.928). With the needle's shadow lifted (docs/stopping.md
 // item 17; 2026-12-05) the cyst-needles are ok too, Dice 0.940 and 0.952 (before 0.932, 0.942).
+// Since the fit on the unsmoothed image (item 13; 2026-12-06) every phantom meets the issue's
+// 0.93: Dice 0.945-0.968, the double tori 0.951 and 0.945.
 TEST(EchoPipeline, EveryPhantomKeepsItsGenusAtContrastHalf) {
   for (const auto& [name, genus] : {std::tuple{"lv", 0}, std::tuple{"cyst-needle", 1},
                                     std::tuple{"torus", 1}, std::tuple{"double-torus", 2}})
@@ -253,12 +255,11 @@ TEST(EchoPipeline, EveryPhantomKeepsItsGenusAtContrastHalf) {
       ASSERT_TRUE(r.ok && r.labels) << name << " seed " << seed << ": " << r.error;
       EXPECT_EQ(r.topology.genus, genus) << name << " seed " << seed;
       const double dice = internal::dice(*r.labels, phantom.truth);
-      EXPECT_GE(dice, 0.915) << name << " seed " << seed;
+      EXPECT_GE(dice, 0.93) << name << " seed " << seed;
       EXPECT_GE(r.wall_support, 0.75f) << name << " seed " << seed;
       if (std::string(name) != "cyst-needle") continue;
       EXPECT_LT(r.shadow_factor, 0.5f) << "seed " << seed;  // the needle's shadow was found
       EXPECT_TRUE(r.quality_ok) << "seed " << seed;
-      EXPECT_GE(dice, 0.93) << "seed " << seed;
     }
 }
 
