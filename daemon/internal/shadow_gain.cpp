@@ -331,7 +331,9 @@ std::pair<Vec3i, Vec3i> shadow_box(const Beams& beams, const std::vector<std::si
 void lift_shadow(const Beams& beams, const std::vector<std::size_t>& casters, float lift,
                  int threads, Volume& image, std::size_t& lifted) {
   const ShadowMap shadow(beams, casters);
-  const auto [from, to] = shadow_box(beams, casters);
+  // (Not a structured binding: the lambda below captures the box, which clang 14 refuses.)
+  const std::pair<Vec3i, Vec3i> box = shadow_box(beams, casters);
+  const Vec3i from = box.first, to = box.second;
   std::vector<float>& v = image.f32();
   std::vector<std::size_t> counts(static_cast<std::size_t>(threads), 0);
   mesh::parallel_chunks(
