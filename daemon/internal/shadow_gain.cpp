@@ -382,9 +382,9 @@ std::vector<std::vector<std::size_t>> casting_parts(const Beams& beams,
 
 // The casters among the mask's clusters (`ones` its voxels, each marked 2 as its cluster is
 // taken), their shadow ratios added to `ratios`, both in the clusters' order whatever the threads
-// did. Only clusters of kMinCasters voxels and kMinLengthVox or more are judged (a needle is a
-// line, a speckle grain or a clutter blob short): about 40 on a 128³ echo volume, most the near
-// field's clutter.
+// did. Only clusters of kMinCasters voxels or more, kMinLengthVox voxels long or more, are
+// judged (a needle is a line; a speckle grain or a clutter blob is short): about 40 on a 128³
+// echo volume, most of them the near field's clutter.
 std::vector<std::size_t> find_casters(const Beams& beams, const std::vector<std::size_t>& ones,
                                       int threads, std::vector<std::uint8_t>& bright,
                                       std::vector<float>& ratios) {
