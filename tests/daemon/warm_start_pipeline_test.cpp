@@ -260,5 +260,33 @@ TEST(WarmStartPipeline, AnEchoChainAtContrastHalfStaysOnTheWall) {
   EXPECT_GE(tracked, 6);  // (7 of 7 when this was written)
 }
 
+// A chain that has lifted no shadow tracks without the search (docs/stopping.md item 17). The
+// volume a needle comes into is refused by the tracker, and its balloon sees the shadow lifted.
+TEST(WarmStartPipeline, ANeedleComingIntoAChainWithoutOneHasItsShadowLifted) {
+  Stream stream;
+  for (int i = 0; i < 4; ++i) {
+    const bool needle = i == 3;
+    sim::PhantomSpec spec = sim::with_echo_realism({.phantom = "cyst-needle",
+                                                    .size_vox = kSize,
+                                                    .spacing_mm = Vec3f::Constant(kSpacingMm),
+                                                    .time_s = 0.1f * static_cast<float>(i),
+                                                    .needle = needle});
+    spec.contrast = 0.5f;
+    const sim::Phantom p = sim::make_phantom(spec);
+    const PipelineResult r = stream.next(p);
+    ASSERT_TRUE(r.ok) << "volume " << i << ": " << r.error;
+    if (!needle) {
+      EXPECT_EQ(r.shadow_voxels, 0u) << "volume " << i;
+      if (i > 0) {
+        EXPECT_GT(r.tracking.chain, 0) << "volume " << i << ": " << r.tracking.refused;
+      }
+      continue;
+    }
+    EXPECT_EQ(r.tracking.chain, 0) << "the tracker let the needle in";
+    EXPECT_LT(r.shadow_factor, 0.5f);
+    EXPECT_EQ(r.topology.genus, 1);
+  }
+}
+
 }  // namespace
 }  // namespace sonomesh::daemon
