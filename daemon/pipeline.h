@@ -179,6 +179,7 @@ struct PipelineResult {
   struct Tracking {
     int chain = 0;
     float open_patch_base = -1.0f;
+    long bright_line_base = 0;  // deep bright voxels on a line inside the chain's first result
     std::string refused;
     bool balloon_stale = false;
   } tracking;

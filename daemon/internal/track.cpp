@@ -158,6 +158,16 @@ std::string label_consistently(const volume::Volume& input, const volume::Volume
   return std::abs(mismatch) <= kMostInsideMismatch ? "" : crossed + ", reconstructed too";
 }
 
+// The deep bright voxels on one line inside `result`'s surface (`labels` its inside), none when
+// they are no solid structure (bright_inside.h).
+DeepLine deep_bright_line(const volume::Volume& smoothed, const volume::Volume& labels,
+                          const PipelineResult& result) {
+  const InsideRegion inside =
+      inside_labels(labels, mesh::bounding_box(result.mesh), result.balloon_stats);
+  const BrightStructure bright = deepest_bright_structure(smoothed, inside);
+  return solid_inside(bright) ? deep_on_a_line(smoothed, inside, bright) : DeepLine{};
+}
+
 // The previous result as this volume's, with this volume's smoothing and the fitted surface.
 PipelineResult carried(const PipelineResult& previous, const PipelineResult& smoothed,
                        segment::Mesh surface) {
@@ -217,21 +227,18 @@ std::string track_surface(const volume::Volume& input, const Vec3f& seed_mm,
           label_consistently(input, buffers.smoothed, previous, seed_mm, config, folded, tracked);
       !why.empty())
     return why;
-  const InsideRegion inside =
-      inside_labels(*tracked.labels, mesh::bounding_box(tracked.mesh), levels);
-  const BrightStructure bright = deepest_bright_structure(buffers.smoothed, inside);
   // Not only one across the target: a needle pushed on from a dent through the far wall adds
   // half of one (which the balloon, not the tracked surface, must open). Counted along one line:
   // at contrast 0.5 the blood pool's speckle above the mid level is a web through the whole
-  // inside, with as many deep voxels near a line as a needle, but not filling it.
+  // inside, with as many deep voxels near a line as a needle, but not filling it. Counted over
+  // what the chain's first result held: the echo lv holds 200-310 such voxels on every volume.
   const double inside_vox = tracked.enclosed_volume_ml * 1e3 / input.spacing_mm().prod();
-  if (solid_inside(bright)) {
-    const DeepLine line = deep_on_a_line(buffers.smoothed, inside, bright);
-    if (static_cast<double>(line.voxels) > kLeastDeepBrightShare * inside_vox &&
-        line.length_mm >= kLeastNeedleMm)
-      return "a bright structure inside, " + std::to_string(line.voxels) +
-             " voxels deep on a line of " + std::to_string(std::lround(line.length_mm)) + " mm";
-  }
+  const DeepLine line = deep_bright_line(buffers.smoothed, *tracked.labels, tracked);
+  if (static_cast<double>(line.voxels - previous.tracking.bright_line_base) >
+          kLeastDeepBrightShare * inside_vox &&
+      line.length_mm >= kLeastNeedleMm)
+    return "a bright structure inside, " + std::to_string(line.voxels) +
+           " voxels deep on a line of " + std::to_string(std::lround(line.length_mm)) + " mm";
   if (!config.want_labels) tracked.labels.reset();
   tracked.timings.labels_ms = ms_since(t_labels) - tracked.timings.reconstruct_ms;
   judge(tracked, "");
@@ -251,12 +258,16 @@ bool remake_tracked(const volume::Volume& input, const volume::Volume& smoothed,
   return std::abs(mismatch) <= kRemadeInsideMismatch;
 }
 
-void measure_tracking_base(const PipelineBuffers& buffers, int threads, PipelineResult& result) {
+void measure_tracking_base(const volume::Volume& input, const PipelineBuffers& buffers, int threads,
+                           PipelineResult& result) {
   const segment::BalloonStats& levels = result.balloon_stats;
   if (result.open_patch < 0.0f)
     result.open_patch =
         open_patch(buffers.smoothed, result.mesh, levels.seed_level, levels.tissue_level, threads);
   result.tracking.open_patch_base = result.open_patch;
+  const volume::Volume labels =
+      result.labels ? *result.labels : reconstruct::rasterize_labels(result.mesh, input);
+  result.tracking.bright_line_base = deep_bright_line(buffers.smoothed, labels, result).voxels;
 }
 
 }  // namespace sonomesh::daemon::internal

@@ -34,7 +34,9 @@ bool remake_tracked(const volume::Volume& input, const volume::Volume& smoothed,
                     const Vec3f& seed_mm, const PipelineConfig& config, PipelineResult& result);
 
 /// Sets `result.tracking`'s base on a result the balloon made, for the chain it may start: its
-/// open patch (measured when it was not).
-void measure_tracking_base(const PipelineBuffers& buffers, int threads, PipelineResult& result);
+/// open patch (measured when it was not) and the deep bright voxels on a line inside it (labels
+/// made from its surface when it has none).
+void measure_tracking_base(const volume::Volume& input, const PipelineBuffers& buffers, int threads,
+                           PipelineResult& result);
 
 }  // namespace sonomesh::daemon::internal
