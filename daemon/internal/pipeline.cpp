@@ -385,9 +385,8 @@ PipelineResult run_volume(const volume::Volume& input, const Vec3f& seed_mm,
   // A volume tracking one that lifted no shadow skips the search (10 ms at 128³, 40-60 on
   // tomaat): a needle that comes in makes the tracker refuse, and the balloon's image has it.
   const bool track = trackable(config, warm);
-  PipelineConfig unsearched = config;
-  unsearched.shadow_gain = config.shadow_gain && !(track && warm->previous->shadow_voxels == 0);
-  no_data = &internal::smooth_stage(input, seed_mm, unsearched, buffers, result);
+  const bool search = !(track && warm->previous->shadow_voxels == 0);
+  no_data = &internal::smooth_stage(input, seed_mm, config, buffers, result, search);
   if (stop.stop_requested()) return finish("stopped");
   if (track) {
     try {
@@ -398,7 +397,7 @@ PipelineResult run_volume(const volume::Volume& input, const Vec3f& seed_mm,
     }
     judged = result.tracking.refused.empty();
     if (judged) return finish("");
-    if (unsearched.shadow_gain != config.shadow_gain) {
+    if (!search && config.shadow_gain) {
       const double tracked_ms = result.timings.smooth_ms;
       no_data = &internal::smooth_stage(input, seed_mm, config, buffers, result);
       result.timings.smooth_ms += tracked_ms;

@@ -26,7 +26,8 @@ float pre_filter_sigma_mm(const volume::Volume& input, float grain_mm) {
 
 const std::vector<std::uint8_t>& smooth_stage(const volume::Volume& input, const Vec3f& seed_mm,
                                               const PipelineConfig& config,
-                                              PipelineBuffers& buffers, PipelineResult& result) {
+                                              PipelineBuffers& buffers, PipelineResult& result,
+                                              bool search_shadows) {
   static const NoDataRegion kNone;
   const auto t = Clock::now();
   result.speckle_grain_mm = volume::speckle_grain_mm(input, seed_mm);
@@ -41,7 +42,7 @@ const std::vector<std::uint8_t>& smooth_stage(const volume::Volume& input, const
   if (dark) internal::update_no_data(input, buffers.no_data);
   const NoDataRegion& no_data = dark ? buffers.no_data : kNone;
   const bool rewritten = internal::working_image(input, result.target, no_data, buffers.working);
-  if (rewritten && config.shadow_gain && no_data.apex_mm) {
+  if (rewritten && config.shadow_gain && search_shadows && no_data.apex_mm) {
     const ShadowGain gain =
         compensate_shadows(buffers.working, no_data.mask, *no_data.apex_mm, config.balloon.threads);
     result.shadow_factor = gain.shadow_factor;

@@ -16,9 +16,11 @@ namespace sonomesh::daemon::internal {
 
 /// §0: what the balloon sees and its pre-filter (docs/stopping.md), into `buffers.smoothed`.
 /// Returns the probe's no-data mask for a dark target (in `buffers`), else an empty one.
+/// `search_shadows` false skips the shadow search that `config.shadow_gain` asks for.
 const std::vector<std::uint8_t>& smooth_stage(const volume::Volume& input, const Vec3f& seed_mm,
                                               const PipelineConfig& config,
-                                              PipelineBuffers& buffers, PipelineResult& result);
+                                              PipelineBuffers& buffers, PipelineResult& result,
+                                              bool search_shadows = true);
 
 /// The same volume smoothed again at `sigma_mm` (the coarse retry, the fine fit), after
 /// smooth_stage gave `first`: the image it left in `buffers` (polarity, no-data fill, lifted

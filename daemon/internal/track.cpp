@@ -265,9 +265,10 @@ void measure_tracking_base(const volume::Volume& input, const PipelineBuffers& b
     result.open_patch =
         open_patch(buffers.smoothed, result.mesh, levels.seed_level, levels.tissue_level, threads);
   result.tracking.open_patch_base = result.open_patch;
-  const volume::Volume labels =
-      result.labels ? *result.labels : reconstruct::rasterize_labels(result.mesh, input);
-  result.tracking.bright_line_base = deep_bright_line(buffers.smoothed, labels, result).voxels;
+  std::optional<volume::Volume> made;  // (the result's own labels when it has them, not a copy)
+  if (!result.labels) made = reconstruct::rasterize_labels(result.mesh, input);
+  result.tracking.bright_line_base =
+      deep_bright_line(buffers.smoothed, result.labels ? *result.labels : *made, result).voxels;
 }
 
 }  // namespace sonomesh::daemon::internal
