@@ -151,8 +151,11 @@ struct PipelineResult {
   bool quality_ok = true;
   std::vector<std::string> quality_reasons;
   /// Share of the final surface's vertices with a brighter wall just beyond them in the image the
-  /// balloon saw (the verdict wants 3/4); −1 when not measured (no surface).
+  /// balloon saw (the verdict wants 3/4); −1 when not measured (no surface). Where the fit on the
+  /// unsmoothed image ran, it is `fitted_wall_support`: that fit moves walls facing the probe off
+  /// the smoothed image's blurred edge, which this test reads.
   float wall_support = -1.0f;
+  float fitted_wall_support = -1.0f;  // the surface's before the unsmoothed fit; −1: not measured
   /// Share of the final surface's area in its largest patch that looks into the target's inside
   /// (measured on a cold result the verdict called ok, to ask for the second opinion); −1 when
   /// not measured.

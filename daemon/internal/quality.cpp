@@ -195,8 +195,10 @@ void quality_verdict(const volume::Volume& input, const volume::Volume& smoothed
       why.emplace_back("implausible genus");
     else if (result.tissue_columns_filled)
       why.emplace_back("tissue columns filled");
-    result.wall_support = wall_support(smoothed, result.mesh, result.balloon_stats.seed_level,
-                                       result.balloon_stats.tissue_level);
+    result.wall_support = result.fitted_wall_support >= 0.0f
+                              ? result.fitted_wall_support
+                              : wall_support(smoothed, result.mesh, result.balloon_stats.seed_level,
+                                             result.balloon_stats.tissue_level);
     if (result.wall_support >= 0.0f && result.wall_support < kLeastWallSupport)
       why.emplace_back("surface not on the target's wall");
     // A bright structure across the target whose walls opened no tunnel: a needle's handle is

@@ -1,13 +1,16 @@
 // The fitted surface's last steps (stages.h): the fit once more on the unsmoothed image at the
 // fitted volume (fit_unsmoothed), and the surface made again from its own samples (resurfaced),
 // the wall fit's vertices through Kazhdan's reconstruction once more.
+#include <Eigen/Geometry>
 #include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <optional>
 #include <utility>
 #include <vector>
 
 #include "daemon/internal/stages.h"
+#include "daemon/internal/target_image.h"
 
 namespace sonomesh::daemon::internal {
 namespace {
@@ -18,27 +21,68 @@ namespace {
 // target thin tubes were lost too: docs/stopping.md item 19).
 constexpr float kCoarseCells = 1.25f;
 
-}  // namespace
-
-void keep_volume(segment::Mesh& surface, double has_ml, double volume_ml) {
-  const double area_mm2 = mesh::surface_area_mm2(surface);
-  if (!(area_mm2 > 0.0)) return;
-  const auto out_mm = static_cast<float>((volume_ml - has_ml) * 1e3 / area_mm2);
-  const std::vector<Vec3f> normal = mesh::vertex_normals(surface);
-  for (std::size_t v = 0; v < normal.size(); ++v) surface.vertices[v] += out_mm * normal[v];
+// The area that moves: each triangle's third per vertex not held.
+double moving_area_mm2(const segment::Mesh& surface, const std::vector<char>& held) {
+  if (held.empty()) return mesh::surface_area_mm2(surface);
+  double area_mm2 = 0.0;
+  for (const auto& t : surface.triangles) {
+    const Vec3f& a = surface.vertices[t[0]];
+    const int moving = 3 - held[t[0]] - held[t[1]] - held[t[2]];
+    area_mm2 +=
+        moving * (surface.vertices[t[1]] - a).cross(surface.vertices[t[2]] - a).norm() / 6.0;
+  }
+  return area_mm2;
 }
 
 // Over more rings than the fit on the smoothed image: the unsmoothed image's speckle is finer.
 constexpr int kUnsmoothedFitRings = 5;
+// A wall the beam meets within 45° of square (docs/stopping.md item 13).
+constexpr float kFacingCos = 0.7f;
+
+std::vector<char> facing_the_probe(const segment::Mesh& surface, const Vec3f& apex_mm) {
+  const std::vector<Vec3f> normal = mesh::vertex_normals(surface);
+  std::vector<char> facing(normal.size(), 0);
+  for (std::size_t v = 0; v < normal.size(); ++v) {
+    const Vec3f ray = (surface.vertices[v] - apex_mm).normalized();
+    facing[v] = std::abs(ray.dot(normal[v])) > kFacingCos ? 1 : 0;
+  }
+  return facing;
+}
+
+}  // namespace
+
+void keep_volume(segment::Mesh& surface, double has_ml, double volume_ml,
+                 const std::vector<char>& held) {
+  const double area_mm2 = moving_area_mm2(surface, held);
+  if (!(area_mm2 > 0.0)) return;
+  const auto out_mm = static_cast<float>((volume_ml - has_ml) * 1e3 / area_mm2);
+  const std::vector<Vec3f> normal = mesh::vertex_normals(surface);
+  for (std::size_t v = 0; v < normal.size(); ++v)
+    if (held.empty() || !held[v]) surface.vertices[v] += out_mm * normal[v];
+}
 
 void fit_unsmoothed(const volume::Volume& input, PipelineBuffers& buffers,
                     const PipelineConfig& config, PipelineResult& result) {
   const double fitted_ml = reconstruct::enclosed_volume_ml(result.mesh);
+  const segment::BalloonStats& levels = result.balloon_stats;
+  result.fitted_wall_support =
+      wall_support(buffers.smoothed, result.mesh, levels.seed_level, levels.tissue_level);
   segment::WallFitOptions options = config.wall_fit_options;
   options.rings = kUnsmoothedFitRings;
-  result.mesh = segment::fit_to_wall(unsmoothed_image(input, result, buffers), result.mesh,
-                                     result.balloon_stats, options, config.balloon.threads);
-  keep_volume(result.mesh, reconstruct::enclosed_volume_ml(result.mesh), fitted_ml);
+  segment::Mesh fitted = segment::fit_to_wall(unsmoothed_image(input, result, buffers), result.mesh,
+                                              levels, options, config.balloon.threads);
+  // Where the probe faces the wall, the pre-filter spread the wall's specular echo inward and the
+  // smoothed crossing lies half a voxel inside: those vertices keep the unsmoothed crossing. The
+  // others keep its shape at the volume the smoothed fit gave them.
+  const std::optional<Vec3f>& apex_mm = buffers.no_data.apex_mm;
+  const std::vector<char> facing =
+      apex_mm ? facing_the_probe(result.mesh, *apex_mm) : std::vector<char>{};
+  for (std::size_t v = 0; v < facing.size(); ++v)  // (`fitted` as if the facing had not moved)
+    if (facing[v]) std::swap(fitted.vertices[v], result.mesh.vertices[v]);
+  keep_volume(fitted, reconstruct::enclosed_volume_ml(fitted), fitted_ml, facing);
+  for (std::size_t v = 0; v < facing.size(); ++v)
+    if (facing[v]) fitted.vertices[v] = result.mesh.vertices[v];
+  result.mesh = std::move(fitted);
 }
 
 std::optional<reconstruct::SurfaceResult> resurfaced(const volume::Volume& input,

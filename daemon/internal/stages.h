@@ -58,15 +58,19 @@ std::optional<reconstruct::SurfaceResult> resurfaced(const volume::Volume& input
                                                      bool coarser_when_thick = false);
 
 /// `surface`, enclosing `has_ml`, moved along its normals (mesh::vertex_normals) by the one
-/// distance that makes it enclose `volume_ml`.
-void keep_volume(segment::Mesh& surface, double has_ml, double volume_ml);
+/// distance that makes it enclose `volume_ml`; the vertices `held` (per vertex, 1: held; empty:
+/// none) stay where they are.
+void keep_volume(segment::Mesh& surface, double has_ml, double volume_ml,
+                 const std::vector<char>& held = {});
 
 /// Beyond the paper, after the wall fit (PipelineConfig::fit_unsmoothed): `result`'s surface
 /// fitted once more, on the unsmoothed image and over more rings, then moved along its normals
 /// back to the volume it enclosed. The pre-filter blurs a wall along the normal, which the rings
 /// alone do not, so the unsmoothed image gives the wall's shape; but its speckle lifts the level
 /// ahead of a vertex and moves the crossing half way to it outward, so the smoothed image gives
-/// where the wall lies on average (docs/stopping.md item 13).
+/// where the wall lies on average (docs/stopping.md item 13). Vertices whose wall faces the
+/// probe (buffers' apex) keep their unsmoothed crossing; the others move to keep the volume.
+/// Measures `result.fitted_wall_support` first.
 void fit_unsmoothed(const volume::Volume& input, PipelineBuffers& buffers,
                     const PipelineConfig& config, PipelineResult& result);
 

@@ -181,6 +181,7 @@ PipelineResult carried(const PipelineResult& previous, const PipelineResult& smo
   r.shadow_voxels = smoothed.shadow_voxels;
   r.timings = StageTimings{.smooth_ms = smoothed.timings.smooth_ms};
   r.balloon_iterations = 0;
+  r.fitted_wall_support = -1.0f;  // (the verdict measures this volume's surface)
   r.second_opinion = false;
   r.coarse_start = {};
   // (no reconstruction on this volume)
