@@ -144,13 +144,14 @@ BrightStructure component(const InsideRegion& region, const Components& componen
 
 }  // namespace
 
-BrightStructure bright_structure(const volume::Volume& smoothed, const InsideRegion& region) {
+BrightStructure bright_structure(const volume::Volume& smoothed, const InsideRegion& region,
+                                 bool needle_seen) {
   const Components components = label_components(smoothed, region);
   const std::vector<long>& size = components.size;
   if (size.empty()) return {};
   const auto largest = std::max_element(size.begin(), size.end());
   const long all = std::accumulate(size.begin(), size.end(), 0L);
-  if (2 * *largest < all) return {};  // the speckle of a dark inside, not one structure
+  if (!needle_seen && 2 * *largest < all) return {};  // the speckle of a dark inside
   return component(region, components, static_cast<int>(largest - size.begin()));
 }
 
@@ -282,11 +283,12 @@ InsideRegion inside_indicator(const volume::Volume& smoothed, const volume::Volu
 
 bool open_bright_inside(const volume::Volume& smoothed, const segment::PointCloud& samples,
                         const Vec3f& seed_mm, const reconstruct::PoissonOptions& poisson,
-                        const segment::BalloonStats& levels, reconstruct::SurfaceResult& surface) {
+                        const segment::BalloonStats& levels, bool needle_seen,
+                        reconstruct::SurfaceResult& surface) {
   const auto t = Clock::now();  // (the search is the reconstruction's: timed with it)
   const InsideRegion region = inside_indicator(smoothed, surface.indicator, surface.iso,
                                                mesh::bounding_box(surface.mesh), levels);
-  const BrightStructure structure = bright_structure(smoothed, region);
+  const BrightStructure structure = bright_structure(smoothed, region, needle_seen);
   if (!passed_over(structure, region)) {
     surface.reconstruct_ms += ms_since(t);
     return false;

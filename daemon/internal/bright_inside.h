@@ -24,14 +24,17 @@ struct InsideRegion {
 
 /// The largest 26-connected set of voxels inside brighter than the mid level in `smoothed` (a
 /// dark target's working image), when it holds at least half of them all: one structure (a
-/// needle), not the speckle of a dark inside. `deep_vox` counts those of its voxels whose
-/// neighbours 2 voxels away along each axis are inside too.
+/// needle), not the speckle of a dark inside; or whatever it holds, when a needle cast a shadow
+/// in this volume and the surface has no tunnel (`needle_seen`): a short stretch of needle amid
+/// a contrast-0.5 blood pool's bright grains holds a third of them. `deep_vox` counts those
+/// of its voxels whose neighbours 2 voxels away along each axis are inside too.
 struct BrightStructure {
   std::vector<Vec3i> voxels;
   long deep_vox = 0;
   Vec3i extent_vox = Vec3i::Zero();  // of its box
 };
-BrightStructure bright_structure(const volume::Volume& smoothed, const InsideRegion& region);
+BrightStructure bright_structure(const volume::Volume& smoothed, const InsideRegion& region,
+                                 bool needle_seen = false);
 
 /// Of the same 26-connected sets, the one with the most deep voxels, however many others there
 /// are: a needle pushed on from a dent, beside the thin bright shell inside a tracked surface
@@ -78,9 +81,10 @@ InsideRegion inside_indicator(const volume::Volume& smoothed, const volume::Volu
 /// Where the reconstructed `surface` (from `samples`) passed over a bright structure, reconstructs
 /// it again with the bright structure's walls added to the samples, which opens a needle the
 /// balloon wrapped into the tunnel it is. Keeps the new surface when it encloses the seed. Returns
-/// whether it did.
+/// whether it did. `needle_seen` as bright_structure.
 bool open_bright_inside(const volume::Volume& smoothed, const segment::PointCloud& samples,
                         const Vec3f& seed_mm, const reconstruct::PoissonOptions& poisson,
-                        const segment::BalloonStats& levels, reconstruct::SurfaceResult& surface);
+                        const segment::BalloonStats& levels, bool needle_seen,
+                        reconstruct::SurfaceResult& surface);
 
 }  // namespace sonomesh::daemon::internal

@@ -211,8 +211,10 @@ std::string surface_stage(const volume::Volume& input, const volume::Volume& smo
   surface = reconstruct::reconstruct_surface(samples, seed_mm, poisson);
   if (!surface.mesh.triangles.empty()) {
     const int genus_before = surface.topology.genus;
-    result.bright_inside_opened = internal::open_bright_inside(smoothed, samples, seed_mm, poisson,
-                                                               result.balloon_stats, surface);
+    // (A needle cast a shadow in this volume and the surface has no tunnel for it.)
+    const bool needle_seen = result.shadow_voxels > 0 && genus_before == 0;
+    result.bright_inside_opened = internal::open_bright_inside(
+        smoothed, samples, seed_mm, poisson, result.balloon_stats, needle_seen, surface);
     result.bright_inside_left =
         result.bright_inside_opened && surface.topology.genus <= genus_before;
   }
