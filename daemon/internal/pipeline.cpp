@@ -387,7 +387,10 @@ PipelineResult run_volume(const volume::Volume& input, const Vec3f& seed_mm,
   // A volume tracking one that lifted no shadow skips the search (10 ms at 128³, 40-60 on
   // tomaat): a needle that comes in makes the tracker refuse, and the balloon's image has it.
   const bool track = trackable(config, warm);
-  const bool search = !(track && warm->previous->shadow_voxels == 0);
+  using internal::ShadowSearch;
+  const ShadowSearch search = !track                               ? ShadowSearch::Whole
+                              : warm->previous->shadow_voxels == 0 ? ShadowSearch::None
+                                                                   : ShadowSearch::NearLast;
   no_data = &internal::smooth_stage(input, seed_mm, config, buffers, result, search);
   if (stop.stop_requested()) return finish("stopped");
   if (track) {
@@ -399,7 +402,7 @@ PipelineResult run_volume(const volume::Volume& input, const Vec3f& seed_mm,
     }
     judged = result.tracking.refused.empty();
     if (judged) return finish("");
-    if (!search && config.shadow_gain) {
+    if (search != ShadowSearch::Whole && config.shadow_gain) {
       const double tracked_ms = result.timings.smooth_ms;
       no_data = &internal::smooth_stage(input, seed_mm, config, buffers, result);
       result.timings.smooth_ms += tracked_ms;

@@ -8,6 +8,7 @@
 #include <limits>
 #include <map>
 
+#include "daemon/internal/bright_mask.h"
 #include "mesh/parallel.h"
 
 namespace sonomesh::daemon::internal {
@@ -34,6 +35,9 @@ constexpr int kBlockVox = 24;
 // clear of a needle's shadow (its radius is 1.2-2.5 voxels in our phantoms).
 constexpr int kBeyondFirstVox = 3, kBeyondLastVox = 20;
 constexpr float kBesideVox = 6.0f;
+// A search near the last volume's casters scans their box grown by this much: a needle moves a
+// few voxels between volumes as the target breathes.
+constexpr int kNearMarginVox = 6;
 
 // The sector's median and 90th percentile (every 29th data voxel).
 struct SectorLevels {
@@ -46,61 +50,6 @@ SectorLevels sector_levels(const Volume& image, const std::vector<std::uint8_t>&
   for (std::size_t at = 0; at < v.size(); at += 29)
     if (!no_data[at]) sample.push_back(v[at]);
   return {quantile(sample, 0.5f), quantile(sample, 0.9f)};
-}
-
-// 1 for each voxel over `level` whose 7-voxel cross (it and its face neighbours) averages over it
-// too; 0 on the volume's faces. (The cross, not the 3×3×3 cube: a biopsy needle a voxel or so
-// thick fills too little of the cube.) `ones` receives those voxels in linear order: a few
-// percent of the volume, which the clusters then take without scanning the rest.
-std::vector<std::uint8_t> bright_mask(const Volume& image, float level, int threads,
-                                      std::vector<std::size_t>& ones) {
-  const Vec3i d = image.dims();
-  const std::vector<float>& v = image.f32();
-  const std::ptrdiff_t nx = d.x(), nxy = nx * d.y();
-  std::vector<std::uint8_t> mask(v.size(), 0);
-  std::vector<std::vector<std::size_t>> found(static_cast<std::size_t>(threads));
-  mesh::parallel_chunks(1, d.z() - 1, static_cast<int>(found.size()), [&](int k0, int k1, int c) {
-    for (int k = k0; k < k1; ++k)
-      for (int j = 1; j + 1 < d.y(); ++j)
-        for (int i = 1; i + 1 < d.x(); ++i) {
-          const std::ptrdiff_t at = k * nxy + j * nx + i;
-          if (v[at] <= level) continue;
-          const float sum =
-              v[at] + v[at - 1] + v[at + 1] + v[at - nx] + v[at + nx] + v[at - nxy] + v[at + nxy];
-          if (sum <= 7.0f * level) continue;
-          mask[at] = 1;
-          found[c].push_back(static_cast<std::size_t>(at));
-        }
-  });
-  ones.clear();
-  for (const std::vector<std::size_t>& chunk : found)
-    ones.insert(ones.end(), chunk.begin(), chunk.end());
-  return mask;
-}
-
-// The face-connected cluster of mask voxels (value 1) holding `start`, each marked 2 as it is
-// taken. (A needle's bright core is a solid tube: its faces connect it.)
-void take_cluster(const Vec3i& d, std::size_t start, std::vector<std::uint8_t>& mask,
-                  std::vector<std::size_t>& cluster) {
-  const std::size_t nx = static_cast<std::size_t>(d.x()), nxy = nx * d.y();
-  cluster.assign(1, start);
-  mask[start] = 2;
-  for (std::size_t next = 0; next < cluster.size(); ++next) {
-    const std::size_t at = cluster[next];
-    // (In range: the volume's faces hold no mask voxel.)
-    for (const std::size_t n : {at - 1, at + 1, at - nx, at + nx, at - nxy, at + nxy}) {
-      if (mask[n] != 1) continue;
-      mask[n] = 2;
-      cluster.push_back(n);
-    }
-  }
-}
-
-// The index of a voxel given as Volume::linear_index.
-Vec3i index_of(const Vec3i& d, std::size_t voxel) {
-  const auto nx = static_cast<std::size_t>(d.x()), ny = static_cast<std::size_t>(d.y());
-  return Vec3i(static_cast<int>(voxel % nx), static_cast<int>(voxel / nx % ny),
-               static_cast<int>(voxel / (nx * ny)));
 }
 
 // The longest side of the index box holding the voxels.
@@ -149,9 +98,9 @@ struct Beams {
 
   // Whether the beam through p leaves the bright structure (the mask) within a voxel and a half:
   // the far side of a reflector, where its shadow starts.
-  bool far_side(const Vec3f& p, const std::vector<std::uint8_t>& bright) const {
+  bool far_side(const Vec3f& p, const BrightMask& bright) const {
     const std::ptrdiff_t at = voxel(p + (1.5f * vox_mm) * (p - apex_mm).normalized());
-    return at >= 0 && !bright[static_cast<std::size_t>(at)];
+    return at >= 0 && !bright.bright(static_cast<std::size_t>(at));
   }
 
   // The shadow's level beyond p over the level beside it (1: no shadow): of four directions
@@ -178,7 +127,7 @@ struct Beams {
   // few by chance). Empty otherwise. At most about kMostTested voxels of the far side are tested,
   // evenly spread: a large bright structure costs no more than a needle.
   std::vector<float> cluster_ratios(const std::vector<std::size_t>& cluster,
-                                    const std::vector<std::uint8_t>& bright) const {
+                                    const BrightMask& bright) const {
     std::vector<Vec3f> far;
     const std::size_t step = cluster.size() / (8 * kMostTested) + 1;  // (a large cluster: a sample)
     for (std::size_t c = 0; c < cluster.size(); c += step)
@@ -357,8 +306,7 @@ void lift_shadow(const Beams& beams, const std::vector<std::size_t>& casters, fl
 // as a whole does not cast.)
 std::vector<std::vector<std::size_t>> casting_parts(const Beams& beams,
                                                     const std::vector<std::size_t>& cluster,
-                                                    int length_vox,
-                                                    const std::vector<std::uint8_t>& bright,
+                                                    int length_vox, const BrightMask& bright,
                                                     std::vector<float>& ratios) {
   std::vector<std::vector<std::size_t>> parts;
   const auto take = [&](const std::vector<std::size_t>& part) {
@@ -386,14 +334,13 @@ std::vector<std::vector<std::size_t>> casting_parts(const Beams& beams,
 // judged (a needle is a line; a speckle grain or a clutter blob is short): about 40 on a 128³
 // echo volume, most of them the near field's clutter.
 std::vector<std::size_t> find_casters(const Beams& beams, const std::vector<std::size_t>& ones,
-                                      int threads, std::vector<std::uint8_t>& bright,
-                                      std::vector<float>& ratios) {
+                                      int threads, BrightMask& bright, std::vector<float>& ratios) {
   const Vec3i d = beams.image.dims();
   std::vector<std::pair<std::vector<std::size_t>, int>> lines;  // voxels, longest side
   std::vector<std::size_t> cluster;
   for (const std::size_t at : ones) {
-    if (bright[at] != 1) continue;  // (taken with an earlier cluster)
-    take_cluster(d, at, bright, cluster);
+    if (!bright.untaken(at)) continue;  // (taken with an earlier cluster)
+    bright.take_cluster(at, cluster);
     if (cluster.size() < kMinCasters) continue;
     if (const int length_vox = longest_side_vox(d, cluster); length_vox >= kMinLengthVox)
       lines.emplace_back(cluster, length_vox);
@@ -412,6 +359,30 @@ std::vector<std::size_t> find_casters(const Beams& beams, const std::vector<std:
   return casters;
 }
 
+// The casters among the clusters that have a bright voxel in `box` (grown whole beyond it), their
+// ratios in `ratios` (cleared first).
+std::vector<std::size_t> casters_in(const Beams& beams, float level, int threads,
+                                    const IndexBox& box, std::vector<float>& ratios) {
+  BrightMask bright(beams.image, level);
+  std::vector<std::size_t> ones;
+  bright.scan(box, threads, ones);
+  ratios.clear();
+  return find_casters(beams, ones, threads, bright, ratios);
+}
+
+IndexBox grown(const IndexBox& box, int by_vox) {
+  return {box.lo - Vec3i::Constant(by_vox), box.hi + Vec3i::Constant(by_vox)};
+}
+
+IndexBox bounding_box(const Vec3i& d, const std::vector<std::size_t>& voxels) {
+  IndexBox box{d, Vec3i::Zero()};
+  for (const std::size_t v : voxels) {
+    const Vec3i x = index_of(d, v);
+    box.lo = box.lo.cwiseMin(x), box.hi = box.hi.cwiseMax(x);
+  }
+  return box;
+}
+
 }  // namespace
 
 float quantile(std::vector<float> v, float q) {
@@ -424,7 +395,7 @@ float quantile(std::vector<float> v, float q) {
 // One factor for the volume, the casters' median: a single caster's ratio varies with the speckle
 // along its beam (the lower quartile over-lifted and made columns of lifted speckle).
 ShadowGain compensate_shadows(Volume& image, const std::vector<std::uint8_t>& no_data,
-                              const Vec3f& apex_mm, int threads) {
+                              const Vec3f& apex_mm, int threads, const IndexBox* near) {
   ShadowGain gain;
   if (no_data.empty() || image.type() != volume::VoxelType::Float32) return gain;
   const SectorLevels levels = sector_levels(image, no_data);
@@ -433,14 +404,17 @@ ShadowGain compensate_shadows(Volume& image, const std::vector<std::uint8_t>& no
   const float level = std::max(kCasterLevel * levels.median, levels.p90);
   if (!(level > 0.0f)) return gain;
   const Beams beams{image, no_data, apex_mm, image.spacing_mm().minCoeff(), levels.p90};
-  std::vector<std::size_t> ones;
   threads = mesh::Workers::resolved(threads);
-  std::vector<std::uint8_t> bright = bright_mask(image, level, threads, ones);
   std::vector<float> ratios;
-  const std::vector<std::size_t> casters = find_casters(beams, ones, threads, bright, ratios);
+  std::vector<std::size_t> casters;
+  if (near) casters = casters_in(beams, level, threads, grown(*near, kNearMarginVox), ratios);
+  gain.searched_near = !casters.empty();
+  if (casters.empty())
+    casters = casters_in(beams, level, threads, {Vec3i::Zero(), image.dims()}, ratios);
   if (casters.empty()) return gain;
   gain.casters = static_cast<int>(casters.size());
   gain.shadow_factor = std::max(0.1f, quantile(ratios, 0.5f));
+  gain.casters_box = bounding_box(image.dims(), casters);
   lift_shadow(beams, casters, 1.0f / gain.shadow_factor, threads, image, gain.voxels);
   return gain;
 }

@@ -8,6 +8,7 @@
 #include <optional>
 #include <vector>
 
+#include "daemon/internal/bright_mask.h"
 #include "volume/volume.h"
 
 namespace sonomesh::daemon::internal {
@@ -24,9 +25,11 @@ float quantile(std::vector<float> v, float q);
 
 /// What compensate_shadows found: the voxels it lifted and by how much (1 = none).
 struct ShadowGain {
-  int casters = 0;             // voxels of the bright clusters that cast a shadow
-  std::size_t voxels = 0;      // voxels lifted
-  float shadow_factor = 1.0f;  // the shadow's level over the level beside it
+  int casters = 0;                      // voxels of the bright clusters that cast a shadow
+  std::size_t voxels = 0;               // voxels lifted
+  float shadow_factor = 1.0f;           // the shadow's level over the level beside it
+  std::optional<IndexBox> casters_box;  // the casters' bounding box, when there are casters
+  bool searched_near = false;           // the casters came from the search near `near` (see below)
 };
 
 /// Lifts the acoustic shadows in `image` (Float32; the working image, the no-data region already
@@ -38,8 +41,11 @@ struct ShadowGain {
 /// both sides; a cluster casts when 20 of its far side and a third of those tested do; the
 /// factor is their median. The shadow is every voxel whose beam from the apex passed a caster
 /// more than a voxel before it (less on its edge). `threads` as segment::BalloonOptions::threads;
-/// the result is the same for any count.
+/// the result is the same for any count. With `near` (the last volume's casters_box) only the
+/// clusters with a voxel in that box grown by 6 voxels are judged (each grown whole), and all of
+/// them where that finds no caster.
 ShadowGain compensate_shadows(volume::Volume& image, const std::vector<std::uint8_t>& no_data,
-                              const volume::Vec3f& apex_mm, int threads = 0);
+                              const volume::Vec3f& apex_mm, int threads = 0,
+                              const IndexBox* near = nullptr);
 
 }  // namespace sonomesh::daemon::internal

@@ -27,7 +27,7 @@ float pre_filter_sigma_mm(const volume::Volume& input, float grain_mm) {
 const std::vector<std::uint8_t>& smooth_stage(const volume::Volume& input, const Vec3f& seed_mm,
                                               const PipelineConfig& config,
                                               PipelineBuffers& buffers, PipelineResult& result,
-                                              bool search_shadows) {
+                                              ShadowSearch search) {
   static const NoDataRegion kNone;
   const auto t = Clock::now();
   result.speckle_grain_mm = volume::speckle_grain_mm(input, seed_mm);
@@ -42,11 +42,17 @@ const std::vector<std::uint8_t>& smooth_stage(const volume::Volume& input, const
   if (dark) internal::update_no_data(input, buffers.no_data);
   const NoDataRegion& no_data = dark ? buffers.no_data : kNone;
   const bool rewritten = internal::working_image(input, result.target, no_data, buffers.working);
-  if (rewritten && config.shadow_gain && search_shadows && no_data.apex_mm) {
-    const ShadowGain gain =
-        compensate_shadows(buffers.working, no_data.mask, *no_data.apex_mm, config.balloon.threads);
+  if (rewritten && config.shadow_gain && search != ShadowSearch::None && no_data.apex_mm) {
+    std::optional<IndexBox> near;
+    if (search == ShadowSearch::NearLast && buffers.shadow_casters)
+      near = IndexBox{buffers.shadow_casters->first, buffers.shadow_casters->second};
+    const ShadowGain gain = compensate_shadows(buffers.working, no_data.mask, *no_data.apex_mm,
+                                               config.balloon.threads, near ? &*near : nullptr);
     result.shadow_factor = gain.shadow_factor;
     result.shadow_voxels = gain.voxels;
+    buffers.shadow_casters.reset();
+    if (gain.casters_box)
+      buffers.shadow_casters = std::pair(gain.casters_box->lo, gain.casters_box->hi);
   }
   volume::smooth_gaussian(rewritten ? buffers.working : input, sigma_mm, buffers.smoothed);
   result.timings.smooth_ms = ms_since(t);

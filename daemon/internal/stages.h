@@ -14,13 +14,16 @@
 
 namespace sonomesh::daemon::internal {
 
+/// Where smooth_stage looks for a needle's shadow (`config.shadow_gain`): in the whole volume,
+/// first near the casters the buffers' last search found (a tracked volume), or nowhere.
+enum class ShadowSearch { Whole, NearLast, None };
+
 /// §0: what the balloon sees and its pre-filter (docs/stopping.md), into `buffers.smoothed`.
 /// Returns the probe's no-data mask for a dark target (in `buffers`), else an empty one.
-/// `search_shadows` false skips the shadow search that `config.shadow_gain` asks for.
 const std::vector<std::uint8_t>& smooth_stage(const volume::Volume& input, const Vec3f& seed_mm,
                                               const PipelineConfig& config,
                                               PipelineBuffers& buffers, PipelineResult& result,
-                                              bool search_shadows = true);
+                                              ShadowSearch search = ShadowSearch::Whole);
 
 /// The same volume smoothed again at `sigma_mm` (the coarse retry, the fine fit), after
 /// smooth_stage gave `first`: the image it left in `buffers` (polarity, no-data fill, lifted

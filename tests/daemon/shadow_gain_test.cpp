@@ -146,5 +146,46 @@ TEST(ShadowGain, OneThreadAndTwoLiftTheSame) {
   EXPECT_EQ(one.image.f32(), two.image.f32());
 }
 
+// A tracked volume looks for the casters near the last volume's: where the needle moved a little,
+// it lifts what a search of the whole volume lifts (the clusters grown whole beyond the box, in
+// the order a whole search takes them); where there is no needle near, it searches everywhere.
+TEST(ShadowGain, ASearchNearTheLastCastersLiftsWhatAWholeSearchDoes) {
+  sim::PhantomSpec spec = echo_spec("cyst-needle", 96, 0.5f);
+  Working last = working(sim::make_phantom(spec).image);
+  const internal::ShadowGain before =
+      internal::compensate_shadows(last.image, last.region.mask, *last.region.apex_mm);
+  ASSERT_TRUE(before.casters_box);
+  spec.time_s = 0.3f;  // (the needle a breath on)
+  const sim::Phantom now = sim::make_phantom(spec);
+  Working whole = working(now.image), near = working(now.image);
+  const internal::ShadowGain a =
+      internal::compensate_shadows(whole.image, whole.region.mask, *whole.region.apex_mm);
+  const internal::ShadowGain b = internal::compensate_shadows(
+      near.image, near.region.mask, *near.region.apex_mm, 0, &*before.casters_box);
+  EXPECT_TRUE(b.searched_near);
+  EXPECT_GT(a.casters, 0);
+  EXPECT_EQ(a.casters, b.casters);
+  EXPECT_EQ(a.shadow_factor, b.shadow_factor);
+  EXPECT_EQ(whole.image.f32(), near.image.f32());
+  // Only the needle's far end in the box: its cluster is found from there, and taken in the
+  // order a whole search takes it in (the casting test reads a sample of it in that order).
+  internal::IndexBox far_end = *before.casters_box;
+  far_end.lo.z() = (far_end.lo.z() + far_end.hi.z()) / 2;
+  Working end = working(now.image);
+  const internal::ShadowGain e =
+      internal::compensate_shadows(end.image, end.region.mask, *end.region.apex_mm, 0, &far_end);
+  EXPECT_TRUE(e.searched_near);
+  EXPECT_EQ(e.casters, a.casters);
+  EXPECT_EQ(end.image.f32(), whole.image.f32());
+  // A box where no needle is: the whole volume searched.
+  Working far = working(now.image);
+  const internal::IndexBox corner{volume::Vec3i::Zero(), volume::Vec3i::Constant(4)};
+  const internal::ShadowGain c =
+      internal::compensate_shadows(far.image, far.region.mask, *far.region.apex_mm, 0, &corner);
+  EXPECT_FALSE(c.searched_near);
+  EXPECT_EQ(c.casters, a.casters);
+  EXPECT_EQ(far.image.f32(), whole.image.f32());
+}
+
 }  // namespace
 }  // namespace sonomesh::daemon

@@ -119,8 +119,12 @@ TEST(TrackedPipeline, EchoSeedsAtContrastHalfAreNeverOkWithoutTheTunnel) {
   for (const Vec3f& offset : offsets) {
     const PipelineResult r = run_pipeline(p.image, p.seed_mm + offset, PipelineConfig{});
     ASSERT_TRUE(r.ok) << r.error;
-    if (r.quality_ok) EXPECT_EQ(r.topology.genus, 1) << offset.transpose();
-    if (offset == offsets[2]) EXPECT_TRUE(r.bright_inside_opened);
+    if (r.quality_ok) {
+      EXPECT_EQ(r.topology.genus, 1) << offset.transpose();
+    }
+    if (offset == offsets[2]) {
+      EXPECT_TRUE(r.bright_inside_opened);
+    }
   }
 }
 
