@@ -272,6 +272,16 @@ void measure_tracking_base(const volume::Volume& input, const PipelineBuffers& b
       deep_bright_line(buffers.smoothed, result.labels ? *result.labels : *made, result).voxels;
 }
 
+std::string unfit_anchor(const PipelineResult& fresh, int tracked_genus) {
+  if (!fresh.ok) return "not made: " + fresh.error;
+  if (!fresh.quality_ok) return "suspect";
+  // (The warm start keeps neither.)
+  if (fresh.mesh.vertices.empty() || fresh.balloon.vertices.empty()) return "without a surface";
+  if (fresh.topology.genus == tracked_genus) return {};
+  return "of genus " + std::to_string(fresh.topology.genus) + " where the chain tracked " +
+         std::to_string(tracked_genus);
+}
+
 }  // namespace sonomesh::daemon::internal
 
 namespace sonomesh::daemon {

@@ -312,9 +312,9 @@ void Worker::remake_anchor(std::uint64_t sequence, const volume::Volume& input, 
 // Near the chain's length (refresh_chain) the balloon segments the volume just published once
 // more, its tracked result already out: the tracked surface drifts where the wall is faint (in
 // the needle's shadow +5 % of the volume over 30 volumes at 10/s) and this result re-anchors the
-// chain, while the other lane tracks on and no volume waits for a cold start. Not ok: the next
-// volume starts cold. The pipeline runs it as the cold start after a chain (its length set to
-// `tracked`'s chain).
+// chain, while the other lane tracks on and no volume waits for a cold start. Where it may not
+// anchor the chain (unfit_anchor: suspect, failed, another genus), the next volume starts cold.
+// The pipeline runs it as the cold start after a chain (its length set to `tracked`'s chain).
 void Worker::refresh_anchor(std::uint64_t sequence, const volume::Volume& input, const Start& start,
                             const Vec3f& seed_mm, const WarmStart& tracked,
                             PipelineBuffers& buffers) {
@@ -333,18 +333,14 @@ void Worker::refresh_anchor(std::uint64_t sequence, const volume::Volume& input,
   refresh_busy_ = false;
   if (anchor_ != start.anchor) return;  // the operator chose another object meanwhile
   ++anchor_;
-  if (!fresh.ok || !fresh.quality_ok || fresh.mesh.vertices.empty() ||
-      fresh.balloon.vertices.empty()) {  // (keep_for_warm_start keeps neither of the last two)
+  if (const std::string why = internal::unfit_anchor(fresh, tracked_genus); !why.empty()) {
     previous_.reset();
     spdlog::warn("sequence {}: the balloon's refresh was {}; the next volume starts cold", sequence,
-                 fresh.ok ? "suspect" : "not made: " + fresh.error);
+                 why);
     return;
   }
   keep_for_warm_start(input, fresh);
   previous_->note = "re-anchored by the balloon on sequence " + std::to_string(sequence);
-  if (fresh.topology.genus != tracked_genus)
-    previous_->note += ", genus " + std::to_string(fresh.topology.genus) + " where tracked " +
-                       std::to_string(tracked_genus);
   spdlog::debug("sequence {}: anchor refreshed in {:.0f} ms", sequence, fresh.timings.total_ms);
 }
 

@@ -288,5 +288,23 @@ TEST(WarmStartPipeline, ANeedleComingIntoAChainWithoutOneHasItsShadowLifted) {
   }
 }
 
+// The balloon's refresh of a chain anchors it only with the chain's genus: of two genera one is
+// wrong, and the next volume's cold start says which. (The 128³ echo lv's refresh once came out
+// genus 1 round the near field's clutter; tracked on, it was followed by three cold starts.)
+TEST(WarmStartPipeline, ARefreshOfAnotherGenusDoesNotAnchorTheChain) {
+  const sim::Phantom p = frame(0.0f);
+  const PipelineResult r = run_pipeline(p.image, p.seed_mm, PipelineConfig{});
+  ASSERT_TRUE(r.ok && r.quality_ok) << r.error;
+  ASSERT_EQ(r.topology.genus, 1);
+  EXPECT_EQ(internal::unfit_anchor(r, 1), "");
+  EXPECT_EQ(internal::unfit_anchor(r, 0), "of genus 1 where the chain tracked 0");
+  PipelineResult suspect = r;
+  suspect.quality_ok = false;
+  EXPECT_EQ(internal::unfit_anchor(suspect, 1), "suspect");
+  PipelineResult failed;
+  failed.error = "the balloon leaked";
+  EXPECT_EQ(internal::unfit_anchor(failed, 1), "not made: the balloon leaked");
+}
+
 }  // namespace
 }  // namespace sonomesh::daemon
