@@ -75,9 +75,10 @@ TEST(TrackedPipeline, SeedsInTheInnerHalfGiveTheSameResult) {
 }
 
 // In the echo realism speckle and the needle's shadow can make a seed of the inner half fail:
-// each result is right or flagged, and the ok ones are the same surface. (Measured 2026-12-05:
-// 7 of 7 ok; before the shadow was lifted, docs/stopping.md item 17, 4 of 7, three sealed leaks
-// along the shadow.)
+// each result is right or flagged, and the ok ones are the same surface, to the Dice of
+// 0.98 between any two. (Measured 2026-12-05: 7 of 7 ok; before the shadow was lifted,
+// docs/stopping.md item 17, 4 of 7, three sealed leaks along the shadow. 2026-12-06: the ok
+// results' Dice between any two 0.987 or more.)
 // The phantom's seed and the six 0.45 of the target's equivalent radius away along ±x, ±y, ±z.
 std::array<Vec3f, 7> inner_half_offsets(const sim::Phantom& p) {
   const float r_mm = 0.45f * static_cast<float>(internal::equivalent_radius_mm(p.truth));
@@ -101,7 +102,7 @@ TEST(TrackedPipeline, EchoSeedsInTheInnerHalfAreRightOrFlagged) {
   EXPECT_GE(ok_labels.size(), 6u);
   for (std::size_t a = 0; a < ok_labels.size(); ++a)
     for (std::size_t b = a + 1; b < ok_labels.size(); ++b)
-      EXPECT_GE(internal::dice(ok_labels[a], ok_labels[b]), 0.95)
+      EXPECT_GE(internal::dice(ok_labels[a], ok_labels[b]), 0.98)
           << "ok results " << a << ", " << b;
 }
 
