@@ -23,14 +23,17 @@ BrightMask::BrightMask(const volume::Volume& image, float level)
       level_(level),
       mark_(v_.size(), kUntested) {}
 
-bool BrightMask::test(std::size_t voxel) const {
-  const Vec3i x = index_of(d_, voxel);
-  if ((x.array() < 1).any() || (x.array() > d_.array() - 2).any()) return false;
-  const auto at = static_cast<std::ptrdiff_t>(voxel);
+bool BrightMask::cross_over(std::ptrdiff_t at) const {
   if (v_[at] <= level_) return false;
   const float sum = v_[at] + v_[at - 1] + v_[at + 1] + v_[at - nx_] + v_[at + nx_] + v_[at - nxy_] +
                     v_[at + nxy_];
   return sum > 7.0f * level_;
+}
+
+bool BrightMask::test(std::size_t voxel) const {
+  const Vec3i x = index_of(d_, voxel);
+  if ((x.array() < 1).any() || (x.array() > d_.array() - 2).any()) return false;
+  return cross_over(static_cast<std::ptrdiff_t>(voxel));
 }
 
 void BrightMask::scan(const IndexBox& box, int threads, std::vector<std::size_t>& ones) {
@@ -44,13 +47,7 @@ void BrightMask::scan(const IndexBox& box, int threads, std::vector<std::size_t>
       for (int j = lo.y(); j <= hi.y(); ++j)
         for (int i = lo.x(); i <= hi.x(); ++i) {
           const std::ptrdiff_t at = k * nxy_ + j * nx_ + i;
-          if (v_[at] <= level_) {
-            mark_[at] = dark;
-            continue;
-          }
-          const float sum = v_[at] + v_[at - 1] + v_[at + 1] + v_[at - nx_] + v_[at + nx_] +
-                            v_[at - nxy_] + v_[at + nxy_];
-          mark_[at] = sum > 7.0f * level_ ? kBright : dark;
+          mark_[at] = cross_over(at) ? kBright : dark;
           if (mark_[at] == kBright) found[c].push_back(static_cast<std::size_t>(at));
         }
   });

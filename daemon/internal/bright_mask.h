@@ -42,6 +42,8 @@ class BrightMask {
 
  private:
   static constexpr std::uint8_t kUntested = 0, kBright = 1, kTaken = 2, kDark = 3, kReordered = 4;
+  // The voxel (not on the volume's faces) and its 7-voxel cross over the level.
+  bool cross_over(std::ptrdiff_t at) const;
   bool test(std::size_t voxel) const;
   // The face-connected voxels marked `from` reached from `start`, in breadth-first order, marked
   // `to`.

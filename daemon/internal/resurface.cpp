@@ -1,10 +1,10 @@
 // The fitted surface's last steps (stages.h): the fit once more on the unsmoothed image at the
 // fitted volume (fit_unsmoothed), and the surface made again from its own samples (resurfaced),
 // the wall fit's vertices through Kazhdan's reconstruction once more.
-#include <Eigen/Geometry>
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <numeric>
 #include <optional>
 #include <utility>
 #include <vector>
@@ -21,17 +21,12 @@ namespace {
 // target thin tubes were lost too: docs/stopping.md item 19).
 constexpr float kCoarseCells = 1.25f;
 
-// The area that moves: each triangle's third per vertex not held.
+// The area of the vertices not held: each one's third of its triangles' (mesh::oriented_samples).
 double moving_area_mm2(const segment::Mesh& surface, const std::vector<char>& held) {
   if (held.empty()) return mesh::surface_area_mm2(surface);
-  double area_mm2 = 0.0;
-  for (const auto& t : surface.triangles) {
-    const Vec3f& a = surface.vertices[t[0]];
-    const int moving = 3 - held[t[0]] - held[t[1]] - held[t[2]];
-    area_mm2 +=
-        moving * (surface.vertices[t[1]] - a).cross(surface.vertices[t[2]] - a).norm() / 6.0;
-  }
-  return area_mm2;
+  const mesh::PointCloud moving =
+      mesh::oriented_samples(surface, std::vector<char>(surface.triangles.size(), 1), held);
+  return std::accumulate(moving.area_mm2.begin(), moving.area_mm2.end(), 0.0);
 }
 
 // Over more rings than the fit on the smoothed image: the unsmoothed image's speckle is finer.

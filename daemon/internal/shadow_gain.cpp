@@ -52,14 +52,20 @@ SectorLevels sector_levels(const Volume& image, const std::vector<std::uint8_t>&
   return {quantile(sample, 0.5f), quantile(sample, 0.9f)};
 }
 
-// The longest side of the index box holding the voxels.
-int longest_side_vox(const Vec3i& d, const std::vector<std::size_t>& voxels) {
-  Vec3i lo = d, hi = Vec3i::Zero();
+// The index box holding the voxels.
+IndexBox bounding_box(const Vec3i& d, const std::vector<std::size_t>& voxels) {
+  IndexBox box{d, Vec3i::Zero()};
   for (const std::size_t v : voxels) {
     const Vec3i x = index_of(d, v);
-    lo = lo.cwiseMin(x), hi = hi.cwiseMax(x);
+    box.lo = box.lo.cwiseMin(x), box.hi = box.hi.cwiseMax(x);
   }
-  return (hi - lo).maxCoeff() + 1;
+  return box;
+}
+
+// The longest side of the index box holding the voxels.
+int longest_side_vox(const Vec3i& d, const std::vector<std::size_t>& voxels) {
+  const IndexBox box = bounding_box(d, voxels);
+  return (box.hi - box.lo).maxCoeff() + 1;
 }
 
 // The beams of a sector: rays from the apex, read at whole voxels (nearest), within the data.
@@ -372,15 +378,6 @@ std::vector<std::size_t> casters_in(const Beams& beams, float level, int threads
 
 IndexBox grown(const IndexBox& box, int by_vox) {
   return {box.lo - Vec3i::Constant(by_vox), box.hi + Vec3i::Constant(by_vox)};
-}
-
-IndexBox bounding_box(const Vec3i& d, const std::vector<std::size_t>& voxels) {
-  IndexBox box{d, Vec3i::Zero()};
-  for (const std::size_t v : voxels) {
-    const Vec3i x = index_of(d, v);
-    box.lo = box.lo.cwiseMin(x), box.hi = box.hi.cwiseMax(x);
-  }
-  return box;
 }
 
 }  // namespace
