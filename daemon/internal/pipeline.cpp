@@ -328,7 +328,8 @@ std::string surface_steps(const volume::Volume& input, const Vec3f& seed_mm,
     return std::pair(point, ms_since(t_deepest));
   });
   reinflate_stage(input, buffers, config, stop, result);
-  if (config.wall_fit && !stop.stop_requested()) resurface_stage(input, seed_mm, config, result);
+  if (config.wall_fit && !stop.stop_requested())
+    resurface_stage(input, buffers.smoothed, seed_mm, config, result);
   const auto [point, deepest_ms] = deepest.get();
   result.timings.labels_ms = deepest_ms;
   if (point) {

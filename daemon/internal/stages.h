@@ -80,8 +80,8 @@ void fit_unsmoothed(const volume::Volume& input, PipelineBuffers& buffers,
 /// Beyond the paper, after the wall fit (PipelineConfig::resurface): the fitted surface
 /// `resurfaced`, moved along its normals to the fitted surface's volume, kept where that holds
 /// (PipelineResult::resurfaced).
-void resurface_stage(const volume::Volume& input, const Vec3f& seed_mm,
-                     const PipelineConfig& config, PipelineResult& result);
+void resurface_stage(const volume::Volume& input, const volume::Volume& smoothed,
+                     const Vec3f& seed_mm, const PipelineConfig& config, PipelineResult& result);
 
 /// segment_stages in its two steps, for the second opinion (opinions.h), which looks at a
 /// balloon before its surface is made: the balloon (warm, or cold) into `result`, returning the
