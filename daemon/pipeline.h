@@ -190,6 +190,10 @@ struct PipelineResult {
   /// level stop, as configured or as the second opinion); and whether the second opinion ran.
   std::string stop_rule = "cost";
   bool second_opinion = false;
+  /// The second opinion was asked of this ok result (it looked open or thin), and the other
+  /// rule's result failed, stalled near the seed or enclosed over twice its volume: it may have
+  /// stopped short in the target (the verdict says "not confirmed by the other stop rule").
+  bool unconfirmed = false;
   /// The balloon crumpled (segment::BalloonStats::crumple_restarts), or started with the
   /// stricter self-intersection test because one before it in the stream had: the next volume's
   /// balloons start strict too, rather than crumple and inflate twice.

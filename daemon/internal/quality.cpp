@@ -211,6 +211,7 @@ void quality_verdict(const volume::Volume& input, const volume::Volume& smoothed
     // At the coarse retry's scale a surface a few voxels inside the wall still sees the wall
     // ahead: the wall test cannot tell it from one on the wall, so the result is never ok.
     if (result.coarse_retry) why.emplace_back("coarse pre-filter");
+    if (result.unconfirmed) why.emplace_back("not confirmed by the other stop rule");
   } else if (why.empty()) {
     why.emplace_back("failed");
   }

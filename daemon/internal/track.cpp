@@ -182,7 +182,7 @@ PipelineResult carried(const PipelineResult& previous, const PipelineResult& smo
   r.timings = StageTimings{.smooth_ms = smoothed.timings.smooth_ms};
   r.balloon_iterations = 0;
   r.fitted_wall_support = -1.0f;  // (the verdict measures this volume's surface)
-  r.second_opinion = false;
+  r.second_opinion = r.unconfirmed = false;
   r.coarse_start = {};
   // (no reconstruction on this volume)
   r.dark_tunnels_closed = r.tissue_columns_filled = r.bright_inside_opened = r.resurfaced = false;

@@ -148,6 +148,23 @@ TEST(TrackedPipeline, A64CystsNeedleIsOpenedOnTheFittedSurface) {
   }
 }
 
+// A double torus's tube seeded 0.45 of its radius along −x: Ψ_cost stalls in the tube (genus 0,
+// Dice 0.38, 13 % of its surface open onto the tube), and the level stop, asked for the second
+// opinion, stalls near the seed. The stall passed every test of its own; the second opinion that
+// could not confirm it is said (docs/stopping.md item 9).
+TEST(TrackedPipeline, AStallTheOtherStopRuleCannotConfirmIsSuspect) {
+  sim::PhantomSpec spec{.phantom = "double-torus", .size_vox = 64, .seed = 2};
+  spec.contrast = 0.5f;
+  const sim::Phantom p = sim::make_phantom(sim::with_echo_realism(spec));
+  ASSERT_EQ(p.genus, 2);
+  const PipelineResult r =
+      run_pipeline(p.image, p.seed_mm + inner_half_offsets(p)[2], PipelineConfig{});
+  ASSERT_TRUE(r.ok) << r.error;
+  ASSERT_NE(r.topology.genus, 2) << "the case this test pins down has changed";
+  EXPECT_FALSE(r.quality_ok);
+  EXPECT_TRUE(r.unconfirmed);
+}
+
 // Seeds a voxel or two from the needle, where the balloon wraps it without meeting itself behind
 // it, so the reconstruction passed over it (genus 0 from 11 of 27 seeds round the cyst's centre
 // before): the needle's walls inside the surface open it again.
