@@ -165,6 +165,22 @@ TEST(TrackedPipeline, AStallTheOtherStopRuleCannotConfirmIsSuspect) {
   EXPECT_TRUE(r.unconfirmed);
 }
 
+// The 96³ torus seeded 0.45 of its radius along −x: Ψ_cost's balloon is suspect, and the level
+// stop's result, taken in its place, stalled in the tube (Dice 0.89, 5 % of its surface open
+// onto the tube). Nothing confirms it, and the verdict says so.
+TEST(TrackedPipeline, AnOpenResultWhoseOtherOpinionWasSuspectIsSuspect) {
+  sim::PhantomSpec spec{.phantom = "torus", .size_vox = 96, .seed = 2};
+  spec.contrast = 0.5f;
+  const sim::Phantom p = sim::make_phantom(sim::with_echo_realism(spec));
+  const PipelineResult r =
+      run_pipeline(p.image, p.seed_mm + inner_half_offsets(p)[2], PipelineConfig{});
+  ASSERT_TRUE(r.ok) << r.error;
+  ASSERT_TRUE(r.labels);
+  ASSERT_LT(internal::dice(*r.labels, p.truth), 0.92) << "the case this test pins down has changed";
+  EXPECT_FALSE(r.quality_ok);
+  EXPECT_TRUE(r.unconfirmed);
+}
+
 // Seeds a voxel or two from the needle, where the balloon wraps it without meeting itself behind
 // it, so the reconstruction passed over it (genus 0 from 11 of 27 seeds round the cyst's centre
 // before): the needle's walls inside the surface open it again.
