@@ -86,6 +86,12 @@ std::array<Vec3f, 7> inner_half_offsets(const sim::Phantom& p) {
           Vec3f(0, -r_mm, 0), Vec3f(0, 0, r_mm), Vec3f(0, 0, -r_mm)};
 }
 
+sim::Phantom echo_phantom(const std::string& name, int size_vox, unsigned seed, float contrast) {
+  sim::PhantomSpec spec{.phantom = name, .size_vox = size_vox, .seed = seed};
+  spec.contrast = contrast;
+  return sim::make_phantom(sim::with_echo_realism(spec));
+}
+
 TEST(TrackedPipeline, EchoSeedsInTheInnerHalfAreRightOrFlagged) {
   const sim::Phantom p = sim::make_phantom(sim::with_echo_realism(
       {.phantom = "cyst-needle", .size_vox = 96, .seed = 1, .time_s = 1.6f}));
@@ -112,9 +118,7 @@ TEST(TrackedPipeline, EchoSeedsInTheInnerHalfAreRightOrFlagged) {
 // a needle cast a shadow and the surface has no tunnel, the needle is opened however many grains
 // lie beside it (docs/stopping.md item 14): no seed's result is ok without the tunnel.
 TEST(TrackedPipeline, EchoSeedsAtContrastHalfAreNeverOkWithoutTheTunnel) {
-  sim::PhantomSpec spec{.phantom = "cyst-needle", .size_vox = 96, .seed = 1};
-  spec.contrast = 0.5f;
-  const sim::Phantom p = sim::make_phantom(sim::with_echo_realism(spec));
+  const sim::Phantom p = echo_phantom("cyst-needle", 96, 1, 0.5f);
   ASSERT_EQ(p.genus, 1);
   const std::array<Vec3f, 7> offsets = inner_half_offsets(p);
   for (const Vec3f& offset : offsets) {
@@ -134,9 +138,7 @@ TEST(TrackedPipeline, EchoSeedsAtContrastHalfAreNeverOkWithoutTheTunnel) {
 // ok, from five of the twelve contrast-0.7 seeds 0.45 of the radius off the centre. The fitted
 // surface covers the needle whole; its walls open the tunnel there (docs/stopping.md item 14).
 TEST(TrackedPipeline, A64CystsNeedleIsOpenedOnTheFittedSurface) {
-  sim::PhantomSpec spec{.phantom = "cyst-needle", .size_vox = 64, .seed = 1};
-  spec.contrast = 0.7f;
-  const sim::Phantom p = sim::make_phantom(sim::with_echo_realism(spec));
+  const sim::Phantom p = echo_phantom("cyst-needle", 64, 1, 0.7f);
   ASSERT_EQ(p.genus, 1);
   const std::array<Vec3f, 7> offsets = inner_half_offsets(p);
   for (const Vec3f& offset : {offsets[1], offsets[3], offsets[4]}) {
@@ -153,9 +155,7 @@ TEST(TrackedPipeline, A64CystsNeedleIsOpenedOnTheFittedSurface) {
 // opinion, stalls near the seed. The stall passed every test of its own; the second opinion that
 // could not confirm it is said (docs/stopping.md item 9).
 TEST(TrackedPipeline, AStallTheOtherStopRuleCannotConfirmIsSuspect) {
-  sim::PhantomSpec spec{.phantom = "double-torus", .size_vox = 64, .seed = 2};
-  spec.contrast = 0.5f;
-  const sim::Phantom p = sim::make_phantom(sim::with_echo_realism(spec));
+  const sim::Phantom p = echo_phantom("double-torus", 64, 2, 0.5f);
   ASSERT_EQ(p.genus, 2);
   const PipelineResult r =
       run_pipeline(p.image, p.seed_mm + inner_half_offsets(p)[2], PipelineConfig{});
@@ -169,9 +169,7 @@ TEST(TrackedPipeline, AStallTheOtherStopRuleCannotConfirmIsSuspect) {
 // stop's result, taken in its place, stalled in the tube (Dice 0.89, 5 % of its surface open
 // onto the tube). Nothing confirms it, and the verdict says so.
 TEST(TrackedPipeline, AnOpenResultWhoseOtherOpinionWasSuspectIsSuspect) {
-  sim::PhantomSpec spec{.phantom = "torus", .size_vox = 96, .seed = 2};
-  spec.contrast = 0.5f;
-  const sim::Phantom p = sim::make_phantom(sim::with_echo_realism(spec));
+  const sim::Phantom p = echo_phantom("torus", 96, 2, 0.5f);
   const PipelineResult r =
       run_pipeline(p.image, p.seed_mm + inner_half_offsets(p)[2], PipelineConfig{});
   ASSERT_TRUE(r.ok) << r.error;
