@@ -6,7 +6,6 @@
 #include <chrono>
 #include <exception>
 #include <future>
-#include <tuple>
 #include <vector>
 
 #include "daemon/internal/bright_inside.h"
