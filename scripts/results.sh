@@ -60,7 +60,8 @@ echo_section() {
   done
   echo
   echo "Per contrast (a failed case counts as Dice 0, genus wrong and not ok; distances and volume"
-  echo "errors are over the cases with a surface):"
+  echo "errors are over the cases with a surface; \"wrong and ok\": called ok with the wrong genus or"
+  echo "a Dice under 0.9):"
   echo
   "$accuracy" --summarize "$rows"
   rm -f "$rows"
