@@ -5,6 +5,7 @@
 #include <array>
 #include <cmath>
 #include <numeric>
+#include <optional>
 #include <random>
 #include <utility>
 #include <vector>
@@ -281,6 +282,18 @@ InsideRegion inside_indicator(const volume::Volume& smoothed, const volume::Volu
   return region;
 }
 
+std::optional<reconstruct::SurfaceResult> with_bright_walls(
+    const volume::Volume& smoothed, const InsideRegion& region, mesh::PointCloud samples,
+    const Vec3f& seed_mm, const reconstruct::PoissonOptions& poisson, bool needle_seen) {
+  const BrightStructure structure = bright_structure(smoothed, region, needle_seen);
+  if (!passed_over(structure, region)) return std::nullopt;
+  const mesh::PointCloud walls = bright_walls(smoothed, region, structure);
+  samples.points.insert(samples.points.end(), walls.points.begin(), walls.points.end());
+  samples.normals.insert(samples.normals.end(), walls.normals.begin(), walls.normals.end());
+  samples.area_mm2.insert(samples.area_mm2.end(), walls.area_mm2.begin(), walls.area_mm2.end());
+  return reconstruct::reconstruct_surface(samples, seed_mm, poisson);
+}
+
 bool open_bright_inside(const volume::Volume& smoothed, const segment::PointCloud& samples,
                         const Vec3f& seed_mm, const reconstruct::PoissonOptions& poisson,
                         const segment::BalloonStats& levels, bool needle_seen,
@@ -288,25 +301,15 @@ bool open_bright_inside(const volume::Volume& smoothed, const segment::PointClou
   const auto t = Clock::now();  // (the search is the reconstruction's: timed with it)
   const InsideRegion region = inside_indicator(smoothed, surface.indicator, surface.iso,
                                                mesh::bounding_box(surface.mesh), levels);
-  const BrightStructure structure = bright_structure(smoothed, region, needle_seen);
-  if (!passed_over(structure, region)) {
+  std::optional<reconstruct::SurfaceResult> again =
+      with_bright_walls(smoothed, region, samples, seed_mm, poisson, needle_seen);
+  if (!again || again->mesh.triangles.empty() || !again->seed_enclosed) {
     surface.reconstruct_ms += ms_since(t);
     return false;
   }
-  segment::PointCloud opened = samples;
-  const segment::PointCloud walls = bright_walls(smoothed, region, structure);
-  opened.points.insert(opened.points.end(), walls.points.begin(), walls.points.end());
-  opened.normals.insert(opened.normals.end(), walls.normals.begin(), walls.normals.end());
-  opened.area_mm2.insert(opened.area_mm2.end(), walls.area_mm2.begin(), walls.area_mm2.end());
-  const double search_ms = ms_since(t);
-  reconstruct::SurfaceResult again = reconstruct::reconstruct_surface(opened, seed_mm, poisson);
-  if (again.mesh.triangles.empty() || !again.seed_enclosed) {
-    surface.reconstruct_ms += ms_since(t);
-    return false;
-  }
-  again.reconstruct_ms += surface.reconstruct_ms + search_ms;
-  again.mesh_ms += surface.mesh_ms;
-  surface = std::move(again);
+  again->reconstruct_ms = surface.reconstruct_ms + ms_since(t) - again->mesh_ms;
+  again->mesh_ms += surface.mesh_ms;
+  surface = std::move(*again);
   return true;
 }
 

@@ -4,6 +4,7 @@
 /// surface passed over, or that came in since the surface was tracked.
 
 #include <functional>
+#include <optional>
 #include <vector>
 
 #include "daemon/pipeline.h"
@@ -78,6 +79,12 @@ InsideRegion inside_labels(const volume::Volume& labels, const mesh::Box& box,
 InsideRegion inside_indicator(const volume::Volume& smoothed, const volume::Volume& indicator,
                               float iso, const mesh::Box& box, const segment::BalloonStats& levels);
 
+/// Where the surface inside `region` passed over a bright structure (bright_structure with
+/// `needle_seen`, passed_over), the surface made again from `samples` with the structure's walls
+/// (bright_walls) added to them; nullopt where it passed over none.
+std::optional<reconstruct::SurfaceResult> with_bright_walls(
+    const volume::Volume& smoothed, const InsideRegion& region, mesh::PointCloud samples,
+    const Vec3f& seed_mm, const reconstruct::PoissonOptions& poisson, bool needle_seen);
 /// Where the reconstructed `surface` (from `samples`) passed over a bright structure, reconstructs
 /// it again with the bright structure's walls added to the samples, which opens a needle the
 /// balloon wrapped into the tunnel it is. Keeps the new surface when it encloses the seed. Returns

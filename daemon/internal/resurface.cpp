@@ -59,25 +59,20 @@ void open_needle_passed_over(const volume::Volume& input, const volume::Volume& 
   const volume::Volume labels = reconstruct::rasterize_labels(result.mesh, input);
   const InsideRegion region =
       inside_labels(labels, mesh::bounding_box(result.mesh), result.balloon_stats);
-  const BrightStructure structure = bright_structure(smoothed, region, true);
-  if (!passed_over(structure, region)) return;
-  mesh::PointCloud samples = mesh::oriented_samples(result.mesh);
-  const reconstruct::PoissonOptions poisson = poisson_options(config, input);
-  const mesh::PointCloud walls = bright_walls(smoothed, region, structure);
-  samples.points.insert(samples.points.end(), walls.points.begin(), walls.points.end());
-  samples.normals.insert(samples.normals.end(), walls.normals.begin(), walls.normals.end());
-  samples.area_mm2.insert(samples.area_mm2.end(), walls.area_mm2.begin(), walls.area_mm2.end());
-  reconstruct::SurfaceResult s = reconstruct::reconstruct_surface(samples, seed_mm, poisson);
+  std::optional<reconstruct::SurfaceResult> s =
+      with_bright_walls(smoothed, region, mesh::oriented_samples(result.mesh), seed_mm,
+                        poisson_options(config, input), true);
+  if (!s) return;
   result.bright_inside_opened = true;
-  if (s.mesh.triangles.empty() || !s.seed_enclosed || !s.topology.manifold ||
-      s.topology.components != 1 || s.topology.genus == 0) {
+  if (s->mesh.triangles.empty() || !s->seed_enclosed || !s->topology.manifold ||
+      s->topology.components != 1 || s->topology.genus == 0) {
     result.bright_inside_left = true;
     return;
   }
   // (On the voxel's cells the needle's walls blur the tunnel wide: the wall fit takes it back.)
-  result.mesh = segment::fit_to_wall(smoothed, s.mesh, result.balloon_stats,
+  result.mesh = segment::fit_to_wall(smoothed, s->mesh, result.balloon_stats,
                                      config.wall_fit_options, config.balloon.threads);
-  result.topology = s.topology;
+  result.topology = s->topology;
   result.topology.volume_ml = reconstruct::enclosed_volume_ml(result.mesh);
   result.enclosed_volume_ml = result.topology.volume_ml;
 }
