@@ -45,23 +45,24 @@ std::vector<char> facing_the_probe(const segment::Mesh& surface, const Vec3f& ap
   return facing;
 }
 
-// A needle cast a shadow in this volume and the fitted surface has no tunnel: where it passed
-// over a bright structure across the target, the structure's walls join the surface's samples
-// and the surface is made again, then fitted to the wall. The first reconstruction's test
-// (open_bright_inside) can miss a thin needle that the opened balloon wrapped half-way (a 64³
-// cyst's, 2.5 voxels across: 47 bright voxels inside its χ, none of them deep), which the
-// fitted surface covers whole. A surface made again without the tunnel is not kept, and the
+// The fitted surface has no tunnel: where it passed over a bright structure across the target,
+// the structure's walls join the surface's samples and the surface is made again, then fitted
+// to the wall. The first reconstruction's test (open_bright_inside) can miss a thin needle that
+// the opened balloon wrapped half-way (a 64³ cyst's, 2.5 voxels across: 47 bright voxels inside
+// its χ, none of them deep), which the fitted surface covers whole. Without a probe sector there
+// is no shadow to say a needle is there, so the structure must then hold half the bright voxels
+// inside (bright_structure). A surface made again without the tunnel is not kept, and the
 // verdict says "bright structure inside".
 void open_needle_passed_over(const volume::Volume& input, const volume::Volume& smoothed,
                              const Vec3f& seed_mm, const PipelineConfig& config,
                              PipelineResult& result) {
-  if (result.shadow_voxels == 0 || result.topology.genus != 0 || result.bright_inside_left) return;
+  if (result.topology.genus != 0 || result.bright_inside_left) return;
   const volume::Volume labels = reconstruct::rasterize_labels(result.mesh, input);
   const InsideRegion region =
       inside_labels(labels, mesh::bounding_box(result.mesh), result.balloon_stats);
   std::optional<reconstruct::SurfaceResult> s =
       with_bright_walls(smoothed, region, mesh::oriented_samples(result.mesh), seed_mm,
-                        poisson_options(config, input), true);
+                        poisson_options(config, input), result.shadow_voxels > 0);
   if (!s) return;
   result.bright_inside_opened = true;
   if (s->mesh.triangles.empty() || !s->seed_enclosed || !s->topology.manifold ||

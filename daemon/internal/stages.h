@@ -79,8 +79,8 @@ void fit_unsmoothed(const volume::Volume& input, PipelineBuffers& buffers,
 
 /// Beyond the paper, after the wall fit (PipelineConfig::resurface): the fitted surface
 /// `resurfaced`, moved along its normals to the fitted surface's volume, kept where that holds
-/// (PipelineResult::resurfaced); then, where a needle cast a shadow and the surface has no
-/// tunnel, a bright structure it passed over in `smoothed` is opened (docs/stopping.md item 14).
+/// (PipelineResult::resurfaced); then, where the surface has no tunnel, a bright structure it
+/// passed over in `smoothed` is opened (docs/stopping.md item 14).
 void resurface_stage(const volume::Volume& input, const volume::Volume& smoothed,
                      const Vec3f& seed_mm, const PipelineConfig& config, PipelineResult& result);
 
