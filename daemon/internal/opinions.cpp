@@ -106,6 +106,17 @@ bool open_widely(const PipelineBuffers& buffers, int threads, PipelineResult& r)
              kOpenPatchForSecondOpinion;
 }
 
+// An ok result taken in place of a suspect first opinion has nothing to confirm it where it
+// looks open (in the echo sweep with seeds across the inner half such results were the only
+// wrong ones: a 96³ torus's and a double torus's stall in a tube, open 5.1 and 1.3 % against
+// 0.13 % at most) or is thin and closed: then it is suspect too, "not confirmed".
+void confirm_in_place(const volume::Volume& input, const PipelineBuffers& buffers, int threads,
+                      const Judge& judge, const std::string& error, PipelineResult& taken) {
+  if (!(open_widely(buffers, threads, taken) || thin_and_closed(input, taken))) return;
+  taken.unconfirmed = true;
+  judge(taken, error);
+}
+
 // The coarse retry's sigma: `grains` speckle grains, 2-3 voxels of the finest axis (beyond 3 a
 // needle's tunnel closes).
 float coarse_sigma_mm(const volume::Volume& input, float grain_mm, float grains) {
@@ -187,17 +198,11 @@ std::string segment_opinions(const volume::Volume& input, const Vec3f& seed_mm,
   judge(other, other_error);
   other.second_opinion = true;
   other.start_reason = result.start_reason;  // (both cold: the first says why)
+  const bool checked = !config.smooth_sigma_mm && !known_target;
   if (later) {
     if (other.ok && other.quality_ok) {
-      // An open result whose first opinion was suspect has nothing to confirm it: in the echo
-      // sweep with seeds across the inner half such results were the only wrong ones (a 96³
-      // torus's and a double torus's stall in a tube, open 5.1 and 1.3 % against 0.13 % at most).
-      // Nor has a thin closed one.
-      if (!config.smooth_sigma_mm && !known_target &&
-          (open_widely(buffers, config.balloon.threads, other) || thin_and_closed(input, other))) {
-        other.unconfirmed = true;
-        judge(other, other_error);
-      }
+      if (checked)
+        confirm_in_place(input, buffers, config.balloon.threads, judge, other_error, other);
       judged = true;
       result = std::move(other);
       return other_error;
@@ -214,6 +219,8 @@ std::string segment_opinions(const volume::Volume& input, const Vec3f& seed_mm,
   }
   if (other.ok && other.quality_ok && result.quality_ok)
     open_widely(buffers, config.balloon.threads, other);
+  else if (other.ok && other.quality_ok && checked)
+    confirm_in_place(input, buffers, config.balloon.threads, judge, other_error, other);
   if (!better(other, result)) return error;
   result = std::move(other);
   return other_error;

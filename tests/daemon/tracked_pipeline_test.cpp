@@ -6,6 +6,7 @@
 #include <cmath>
 #include <cstdio>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "daemon/internal/metrics.h"
@@ -200,13 +201,18 @@ TEST(TrackedPipeline, AnOtherBalloonThatReachedFarLeavesDoubt) {
 // The 64³ double torus at contrast 0.4, seed 3: Ψ_cost's balloon is suspect and the level
 // stop's result, taken in its place, stalled in a tube with its caps on grains (genus 0, Dice
 // 0.59, open 0.3 %). Thin and closed, nothing confirms it.
+// The same where the first opinion's surface was made and called suspect: the 64³ ventricle of
+// seed 2 at contrast 0.4 (Ψ_cost "surface not on the target's wall"; the level stop's surface
+// genus 0, Dice 0.74, volume −38 %, 7.7 voxels deep).
 TEST(TrackedPipeline, AThinClosedResultWhoseOtherOpinionWasSuspectIsSuspect) {
-  const sim::Phantom p = echo_phantom("double-torus", 64, 3, 0.4f);
-  const PipelineResult r = run_pipeline(p.image, p.seed_mm, PipelineConfig{});
-  ASSERT_TRUE(r.ok) << r.error;
-  ASSERT_EQ(r.topology.genus, 0) << "the case this test pins down has changed";
-  EXPECT_FALSE(r.quality_ok);
-  EXPECT_TRUE(r.unconfirmed);
+  for (const auto& [name, seed] : {std::pair("double-torus", 3u), std::pair("lv", 2u)}) {
+    const sim::Phantom p = echo_phantom(name, 64, seed, 0.4f);
+    const PipelineResult r = run_pipeline(p.image, p.seed_mm, PipelineConfig{});
+    ASSERT_TRUE(r.ok && r.labels) << name << ": " << r.error;
+    ASSERT_LT(internal::dice(*r.labels, p.truth), 0.9) << name << ": the case has changed";
+    EXPECT_FALSE(r.quality_ok) << name;
+    EXPECT_TRUE(r.unconfirmed) << name;
+  }
 }
 
 TEST(TrackedPipeline, AThinGenusZeroResultIsAskedAgain) {
