@@ -110,6 +110,9 @@ json measure(const sim::PhantomSpec& spec, const daemon::RunConfig& config, int 
               {"seed_level", result.balloon_stats.seed_level},
               {"tissue_level", result.balloon_stats.tissue_level},
               {"seed_sigma", result.balloon_stats.seed_sigma},
+              {"speckle_grain_mm", result.speckle_grain_mm},
+              {"smooth_sigma_mm", result.smooth_sigma_mm},
+              {"deepest_depth_mm", result.deepest_depth_mm},
               {"stop_rule", result.stop_rule},
               {"second_opinion", result.second_opinion},
               {"stops", {s.boundary, s.curvature, s.self_intersection, s.iteration_limit}}});
