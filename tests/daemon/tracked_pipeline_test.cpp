@@ -87,6 +87,11 @@ std::array<Vec3f, 7> inner_half_offsets(const sim::Phantom& p) {
           Vec3f(0, -r_mm, 0), Vec3f(0, 0, r_mm), Vec3f(0, 0, -r_mm)};
 }
 
+// The pipeline with the default options from the phantom's seed moved by `offset_mm`.
+PipelineResult run_from(const sim::Phantom& p, const Vec3f& offset_mm = Vec3f::Zero()) {
+  return run_pipeline(p.image, p.seed_mm + offset_mm, PipelineConfig{});
+}
+
 sim::Phantom echo_phantom(const std::string& name, int size_vox, unsigned seed, float contrast,
                           float time_s = 0.0f) {
   sim::PhantomSpec spec{.phantom = name, .size_vox = size_vox, .seed = seed, .time_s = time_s};
@@ -100,7 +105,7 @@ TEST(TrackedPipeline, EchoSeedsInTheInnerHalfAreRightOrFlagged) {
   ASSERT_EQ(p.genus, 1);
   std::vector<volume::Volume> ok_labels;
   for (const Vec3f& offset : inner_half_offsets(p)) {
-    const PipelineResult r = run_pipeline(p.image, p.seed_mm + offset, PipelineConfig{});
+    const PipelineResult r = run_from(p, offset);
     if (!r.ok || !r.quality_ok) continue;
     ASSERT_TRUE(r.labels);
     EXPECT_EQ(r.topology.genus, 1) << offset.transpose();
@@ -124,7 +129,7 @@ TEST(TrackedPipeline, EchoSeedsAtContrastHalfAreNeverOkWithoutTheTunnel) {
   ASSERT_EQ(p.genus, 1);
   const std::array<Vec3f, 7> offsets = inner_half_offsets(p);
   for (const Vec3f& offset : offsets) {
-    const PipelineResult r = run_pipeline(p.image, p.seed_mm + offset, PipelineConfig{});
+    const PipelineResult r = run_from(p, offset);
     ASSERT_TRUE(r.ok) << r.error;
     if (r.quality_ok) {
       EXPECT_EQ(r.topology.genus, 1) << offset.transpose();
@@ -144,7 +149,7 @@ TEST(TrackedPipeline, A64CystsNeedleIsOpenedOnTheFittedSurface) {
   ASSERT_EQ(p.genus, 1);
   const std::array<Vec3f, 7> offsets = inner_half_offsets(p);
   for (const Vec3f& offset : {offsets[1], offsets[3], offsets[4]}) {
-    const PipelineResult r = run_pipeline(p.image, p.seed_mm + offset, PipelineConfig{});
+    const PipelineResult r = run_from(p, offset);
     ASSERT_TRUE(r.ok) << r.error;
     EXPECT_TRUE(r.topology.genus == 1 || !r.quality_ok) << offset.transpose();
     ASSERT_TRUE(r.labels);
@@ -159,8 +164,7 @@ TEST(TrackedPipeline, A64CystsNeedleIsOpenedOnTheFittedSurface) {
 TEST(TrackedPipeline, AStallTheOtherStopRuleCannotConfirmIsSuspect) {
   const sim::Phantom p = echo_phantom("double-torus", 64, 2, 0.5f);
   ASSERT_EQ(p.genus, 2);
-  const PipelineResult r =
-      run_pipeline(p.image, p.seed_mm + inner_half_offsets(p)[2], PipelineConfig{});
+  const PipelineResult r = run_from(p, inner_half_offsets(p)[2]);
   ASSERT_TRUE(r.ok) << r.error;
   ASSERT_NE(r.topology.genus, 2) << "the case this test pins down has changed";
   EXPECT_FALSE(r.quality_ok);
@@ -172,8 +176,7 @@ TEST(TrackedPipeline, AStallTheOtherStopRuleCannotConfirmIsSuspect) {
 // onto the tube). Nothing confirms it, and the verdict says so.
 TEST(TrackedPipeline, AnOpenResultWhoseOtherOpinionWasSuspectIsSuspect) {
   const sim::Phantom p = echo_phantom("torus", 96, 2, 0.5f);
-  const PipelineResult r =
-      run_pipeline(p.image, p.seed_mm + inner_half_offsets(p)[2], PipelineConfig{});
+  const PipelineResult r = run_from(p, inner_half_offsets(p)[2]);
   ASSERT_TRUE(r.ok) << r.error;
   ASSERT_TRUE(r.labels);
   ASSERT_LT(internal::dice(*r.labels, p.truth), 0.92) << "the case this test pins down has changed";
@@ -186,7 +189,7 @@ TEST(TrackedPipeline, AnOpenResultWhoseOtherOpinionWasSuspectIsSuspect) {
 // seed, enclosing less than twice the first. Its balloon's reach says what its surface cannot.
 TEST(TrackedPipeline, AnOtherBalloonThatReachedFarLeavesDoubt) {
   const sim::Phantom p = echo_phantom("double-torus", 96, 4, 0.5f, 3.0f);
-  const PipelineResult r = run_pipeline(p.image, p.seed_mm, PipelineConfig{});
+  const PipelineResult r = run_from(p);
   ASSERT_TRUE(r.ok) << r.error;
   ASSERT_NE(r.topology.genus, 2) << "the case this test pins down has changed";
   EXPECT_FALSE(r.quality_ok);
@@ -198,8 +201,7 @@ TEST(TrackedPipeline, AnOtherBalloonThatReachedFarLeavesDoubt) {
 // target and could not open it. The first is not confirmed.
 TEST(TrackedPipeline, ANeedleTheOtherOpinionFoundLeavesDoubt) {
   const sim::Phantom p = echo_phantom("cyst-needle", 64, 1, 0.6f);
-  const PipelineResult r =
-      run_pipeline(p.image, p.seed_mm + inner_half_offsets(p)[3], PipelineConfig{});
+  const PipelineResult r = run_from(p, inner_half_offsets(p)[3]);
   ASSERT_TRUE(r.ok) << r.error;
   ASSERT_EQ(r.topology.genus, 0) << "the case this test pins down has changed";
   EXPECT_FALSE(r.quality_ok);
@@ -214,7 +216,7 @@ TEST(TrackedPipeline, ANeedleTheOtherOpinionFoundLeavesDoubt) {
 TEST(TrackedPipeline, AThinClosedResultWhoseOtherOpinionWasSuspectIsSuspect) {
   for (const auto& [name, seed] : {std::pair("double-torus", 3u), std::pair("lv", 2u)}) {
     const sim::Phantom p = echo_phantom(name, 64, seed, 0.4f);
-    const PipelineResult r = run_pipeline(p.image, p.seed_mm, PipelineConfig{});
+    const PipelineResult r = run_from(p);
     ASSERT_TRUE(r.ok && r.labels) << name << ": " << r.error;
     ASSERT_LT(internal::dice(*r.labels, p.truth), 0.9) << name << ": the case has changed";
     EXPECT_FALSE(r.quality_ok) << name;
@@ -228,12 +230,12 @@ TEST(TrackedPipeline, AThinClosedResultWhoseOtherOpinionWasSuspectIsSuspect) {
 // (docs/stopping.md item 9).
 TEST(TrackedPipeline, AThinGenusZeroResultIsAskedAgain) {
   const sim::Phantom torus = echo_phantom("double-torus", 96, 1, 0.5f, 0.8f);
-  const PipelineResult t = run_pipeline(torus.image, torus.seed_mm, PipelineConfig{});
+  const PipelineResult t = run_from(torus);
   ASSERT_TRUE(t.ok) << t.error;
   EXPECT_TRUE(t.second_opinion);
   EXPECT_TRUE(t.topology.genus == 2 || !t.quality_ok);
   const sim::Phantom lv = echo_phantom("lv", 64, 4, 0.5f);
-  const PipelineResult v = run_pipeline(lv.image, lv.seed_mm, PipelineConfig{});
+  const PipelineResult v = run_from(lv);
   ASSERT_TRUE(v.ok && v.labels) << v.error;
   EXPECT_TRUE(v.second_opinion);
   EXPECT_TRUE(internal::dice(*v.labels, lv.truth) >= 0.93 || !v.quality_ok);
