@@ -154,13 +154,13 @@ void print_row(const json& r) {
       stop_rule(r).c_str());
 }
 
-// One row per (realism, contrast): how many cases and how many failed, Dice median and worst (a
-// failed case counts as 0), over the cases with a surface: mean MSD, worst HD95, |volume error|
-// median and worst; genus right and quality ok out of all cases, and the wrong results called ok
-// (genus wrong or Dice under 0.9): the verdict's misses.
 // A result under this Dice is wrong whatever its genus (docs/results.md's "wrong and ok").
 constexpr double kRightDice = 0.9;
 
+// One row per (realism, contrast): how many cases and how many failed, Dice median and worst (a
+// failed case counts as 0), over the cases with a surface: mean MSD, worst HD95, |volume error|
+// median and worst; genus right and quality ok out of all cases, and the wrong results called ok
+// (genus wrong or Dice under kRightDice): the verdict's misses.
 int summarize(const std::string& path) {
   std::ifstream in(path);
   if (!in) {

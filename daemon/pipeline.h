@@ -191,9 +191,11 @@ struct PipelineResult {
   std::string stop_rule = "cost";
   bool second_opinion = false;
   /// The second opinion was asked of this ok result (it looked open or thin), and the other
-  /// rule's result stalled near the seed or enclosed over twice its volume; or this result is
-  /// the other rule's after a suspect first and looks open. It may have stopped short in the
-  /// target (the verdict says "not confirmed by the other stop rule").
+  /// rule's result stalled near the seed, enclosed over twice its volume, spread its balloon
+  /// over 2.5 times its box without a leak, or found a needle across a genus-0 result; or this
+  /// result is the other rule's, taken after a suspect first, and looks open or is thin and
+  /// genus 0. It may have stopped short in the target (the verdict says "not confirmed by the
+  /// other stop rule").
   bool unconfirmed = false;
   /// The balloon crumpled (segment::BalloonStats::crumple_restarts), or started with the
   /// stricter self-intersection test because one before it in the stream had: the next volume's
