@@ -70,9 +70,10 @@ struct PipelineConfig {
   /// balloon.level_stop_fraction is already set.
   float second_opinion_level_stop = 0.5f;
   /// The coarse retry (docs/stopping.md departure 12): a result that stalled on the texture
-  /// around the seed with both stop rules is segmented again on the volume smoothed at this many
-  /// speckle grains (clamped to 2-3 voxels); such a result is always suspect ("coarse
-  /// pre-filter"). 0 = off; only with the automatic pre-filter and the second opinion on.
+  /// around the seed with both stop rules, or whose contrast the verdict calls low, is segmented
+  /// again on the volume smoothed at this many speckle grains (clamped to 2-3 voxels); such a
+  /// result is always suspect ("coarse pre-filter"). 0 = off; only with the automatic pre-filter
+  /// and the second opinion on.
   float coarse_retry_grains = 2.2f;
   /// The cold start coarse to fine (issue 17): the balloon inflates on the smoothed volume
   /// averaged over 2×2×2 blocks, then a short warm start at full resolution takes it from there

@@ -34,10 +34,16 @@ std::string segment_opinions(const volume::Volume& input, const Vec3f& seed_mm,
 /// round it (more handles than a seeded target has: columns of speckle inside the cavity).
 bool stalled_on_texture(const PipelineResult& r);
 
+/// Whether the coarse retry is tried on `r` (after both stop rules): it stalled on the texture,
+/// or the verdict calls its contrast low.
+bool wants_coarse_retry(const PipelineResult& r);
+
 /// The coarse retry (docs/stopping.md departure 12): at low contrast both stop rules stop on the
 /// speckle the grain-sized pre-filter leaves; a coarser one averages it out at the price of the
-/// wall's sharpness. Its result replaces `result` unless it stalled as well and is no better, and
-/// is then fitted to the wall on a finer image (the fine fit).
+/// wall's sharpness. Its result replaces a stalled `result` unless it stalled as well and is no
+/// better; one suspect only for its low contrast where it is the better one, encloses more and
+/// keeps the handles of a needle seen across it. It is then fitted to the wall on a finer image
+/// (the fine fit).
 void coarse_retry(const volume::Volume& input, const Vec3f& seed_mm, const PipelineConfig& config,
                   PipelineBuffers& buffers, const std::stop_token& stop, const Judge& judge,
                   PipelineResult& result, std::string& error);

@@ -424,7 +424,7 @@ PipelineResult run_volume(const volume::Volume& input, const Vec3f& seed_mm,
   std::string error = internal::segment_opinions(input, seed_mm, config, buffers, warm, stop, judge,
                                                  result, judged, known_target);
   if (judged && result.second_opinion && !config.smooth_sigma_mm &&
-      config.coarse_retry_grains > 0.0f && internal::stalled_on_texture(result))
+      config.coarse_retry_grains > 0.0f && internal::wants_coarse_retry(result))
     internal::coarse_retry(input, seed_mm, config, buffers, stop, judge, result, error);
   if (!error.empty()) return finish(std::move(error));
   if (config.want_labels) labels_stage(input, result);
