@@ -48,10 +48,12 @@ std::string refusal(const SeedRegion& seed) {
   if (2 * seed.rays_hit >= seed.rays && contrast > 4.0f * sigma_eff &&
       seed.level < 0.8f * seed.tissue_level)
     return {};
-  // A cavity's blood-pool speckle (issue 15) widens the ball's sigma, not the contrast: where
-  // nearly every ray meets a brighter wall, two sigma and a tenth darker suffice (echo phantoms
-  // at contrast 0.3: 14.6-30 grey levels darker at sigma 5.4-11.9, 60-64 of 64 rays).
-  if (8 * seed.rays_hit >= 7 * seed.rays && contrast > 2.0f * sigma_eff &&
+  // A cavity's blood-pool speckle (issue 15) widens the ball's sigma, not the contrast, and so
+  // does a wall the ball reaches: where nearly every ray meets a brighter wall, 1.8 sigma and a
+  // tenth darker suffice (echo phantoms at contrast 0.3: 14.6-30 grey levels darker at sigma
+  // 5.4-12.7, 57-64 of 64 rays). The verdict, not this test, judges what such a seed gives: of
+  // 192 seeds in echo tissue, 79 pass at 2 sigma and 83 at 1.8, every result suspect.
+  if (8 * seed.rays_hit >= 7 * seed.rays && contrast > 1.8f * sigma_eff &&
       seed.level < 0.9f * seed.tissue_level)
     return {};
   return "seed is not in a hypoechoic region: mean intensity " + std::to_string(seed.level) +

@@ -56,12 +56,16 @@ double pipeline_dice(const sim::Phantom& phantom, float region_fraction, int& ge
   return result.ok && result.labels ? internal::dice(*result.labels, phantom.truth) : 0.0;
 }
 
+// The cyst-needle of seed 2 reads 24 grey levels of contrast at a ball sigma of 12.7 (1.9
+// sigma): refused at the 2 sigma this test once needed; at 1.8 it gives genus 1 (suspect).
 TEST(EchoPipeline, SeedInBloodPoolSpeckleIsAccepted) {
-  for (const char* name : {"sphere", "cyst-needle"}) {
-    const sim::Phantom phantom = echo_phantom(name, 0.3f);
-    const PipelineResult result = run_pipeline(phantom.image, phantom.seed_mm, PipelineConfig{});
-    EXPECT_EQ(result.error.find("hypoechoic"), std::string::npos) << name << ": " << result.error;
-  }
+  for (const char* name : {"sphere", "cyst-needle"})
+    for (unsigned seed : {1u, 2u}) {
+      const sim::Phantom phantom = echo_phantom(name, 0.3f, 64, seed);
+      const PipelineResult result = run_pipeline(phantom.image, phantom.seed_mm, PipelineConfig{});
+      EXPECT_EQ(result.error.find("hypoechoic"), std::string::npos)
+          << name << " seed " << seed << ": " << result.error;
+    }
 }
 
 TEST(EchoPipeline, RegionTermRecoversTheSphereAtContrastHalf) {
