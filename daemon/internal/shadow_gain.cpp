@@ -400,6 +400,7 @@ ShadowGain compensate_shadows(Volume& image, const std::vector<std::uint8_t>& no
   // is mostly dark cavity or dropout has a low median).
   const float level = std::max(kCasterLevel * levels.median, levels.p90);
   if (!(level > 0.0f)) return gain;
+  gain.bright_level = level;
   const Beams beams{image, no_data, apex_mm, image.spacing_mm().minCoeff(), levels.p90};
   threads = mesh::Workers::resolved(threads);
   std::vector<float> ratios;

@@ -29,6 +29,7 @@ struct ShadowGain {
   std::size_t voxels = 0;               // voxels lifted
   float shadow_factor = 1.0f;           // the shadow's level over the level beside it
   std::optional<IndexBox> casters_box;  // the casters' bounding box, when there are casters
+  float bright_level = 0.0f;            // the level a caster's 7-voxel cross lies over
   bool searched_near = false;           // the casters came from the search near `near` (see below)
 };
 

@@ -420,15 +420,31 @@ TEST(EchoPipeline, ALowContrastResultIsNeverOk) {
   EXPECT_TRUE(h.quality_ok);
 }
 
-// The 64³ cyst-needle at contrast 0.7 seeded 0.45 of the radius along +z: the balloon passes
-// over the needle (0.6 mm across), its walls are added to the samples, and the reconstruction
-// still closes the tunnel: genus 0, called ok before (Dice 0.931, 2026-12-05). It is "bright
-// structure inside" now.
+// The 64³ cyst-needles seeded 0.45 of the radius off the centre along +z (contrast 0.7) and +y
+// (0.6): the needle crosses the cube the speckle's grain is measured in and read it as 0.88-0.97
+// mm, the pre-filter followed it to 1.75 voxels or more, and the needle's tunnel closed into a
+// groove (genus 0: "bright structure inside" at +z; ok at +y until the other opinion's needle
+// left the doubt, 2026-12-06). Measured without the needle's bright voxels the grain reads
+// 0.73-0.82 mm, as from the centre: the pre-filter stays at one voxel and the tunnel opens.
+TEST(EchoPipeline, ANeedleAcrossTheGrainsCubeLeavesThePreFilterFine) {
+  for (const auto& [contrast, axis] : {std::pair(0.7f, 2), std::pair(0.6f, 1)}) {
+    const sim::Phantom phantom = echo_phantom("cyst-needle", contrast);
+    Vec3f offset = Vec3f::Zero();
+    offset[axis] = 0.45f * static_cast<float>(internal::equivalent_radius_mm(phantom.truth));
+    const PipelineResult r =
+        run_pipeline(phantom.image, phantom.seed_mm + offset, PipelineConfig{});
+    ASSERT_TRUE(r.ok) << contrast << ": " << r.error;
+    EXPECT_GT(r.shadow_voxels, 0u) << contrast;
+    EXPECT_LE(r.smooth_sigma_mm, phantom.image.spacing_mm().minCoeff()) << contrast;
+    EXPECT_EQ(r.topology.genus, 1) << contrast;
+  }
+}
+
+// The 64³ cyst-needle at contrast 0.3, seed 5: the balloon passes over the needle, its walls are
+// added to the samples, and the reconstruction still closes the tunnel: genus 0, flagged.
 TEST(EchoPipeline, ANeedleTheReconstructionCouldNotOpenIsFlagged) {
-  const sim::Phantom phantom = echo_phantom("cyst-needle", 0.7f);
-  const float radius_mm = static_cast<float>(internal::equivalent_radius_mm(phantom.truth));
-  const Vec3f seed_mm = phantom.seed_mm + Vec3f(0.0f, 0.0f, 0.45f * radius_mm);
-  const PipelineResult r = run_pipeline(phantom.image, seed_mm, PipelineConfig{});
+  const sim::Phantom phantom = echo_phantom("cyst-needle", 0.3f, 64, 5);
+  const PipelineResult r = run_pipeline(phantom.image, phantom.seed_mm, PipelineConfig{});
   ASSERT_TRUE(r.ok) << r.error;
   ASSERT_EQ(r.topology.genus, 0);  // (the fault this flags; a fix makes this test moot)
   EXPECT_TRUE(r.bright_inside_opened && r.bright_inside_left);

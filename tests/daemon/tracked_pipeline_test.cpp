@@ -196,17 +196,6 @@ TEST(TrackedPipeline, AnOtherBalloonThatReachedFarLeavesDoubt) {
   EXPECT_TRUE(r.unconfirmed);
 }
 
-// The 64³ cyst-needle at contrast 0.6 seeded 0.45 of its radius along +y: the first surface
-// wraps the needle in a groove (genus 0, ok); the other opinion found the needle across the
-// target and could not open it. The first is not confirmed.
-TEST(TrackedPipeline, ANeedleTheOtherOpinionFoundLeavesDoubt) {
-  const sim::Phantom p = echo_phantom("cyst-needle", 64, 1, 0.6f);
-  const PipelineResult r = run_from(p, inner_half_offsets(p)[3]);
-  ASSERT_TRUE(r.ok) << r.error;
-  ASSERT_EQ(r.topology.genus, 0) << "the case this test pins down has changed";
-  EXPECT_FALSE(r.quality_ok);
-}
-
 // The 64³ double torus at contrast 0.4, seed 3: Ψ_cost's balloon is suspect and the level
 // stop's result, taken in its place, stalled in a tube with its caps on grains (genus 0, Dice
 // 0.59, open 0.3 %). Thin and closed, nothing confirms it.

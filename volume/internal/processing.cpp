@@ -7,6 +7,7 @@
 #include <new>
 #include <opencv2/core.hpp>
 #include <opencv2/imgproc.hpp>
+#include <optional>
 #include <stdexcept>
 
 #include "volume/volume.h"
@@ -293,16 +294,75 @@ void central_gradient(const Volume& input, Gradient& g) {
   });
 }
 
-float speckle_grain_mm(const Volume& input, const Vec3f& centre_mm, int radius_vox) {
+namespace {
+
+// The speckle's cube (speckle_grain_mm): its bounds and which voxels take part.
+struct GrainCube {
+  const Volume& input;
+  Vec3i lo, hi;
+  const std::vector<std::uint8_t>* excluded;
+  bool used(int i, int j, int k) const {
+    return !excluded || (*excluded)[input.linear_index(i, j, k)] == 0;
+  }
+};
+
+// The normalised autocorrelation at `lag` voxels along `step` over the cube's used pairs; nullopt
+// when there is no pair.
+std::optional<double> autocorrelation(const GrainCube& c, const Vec3i& step, int lag, double mean,
+                                      double variance) {
+  double acc = 0.0;
+  std::size_t pairs = 0;
+  for (int k = c.lo.z(); k <= c.hi.z() - lag * step.z(); ++k)
+    for (int j = c.lo.y(); j <= c.hi.y() - lag * step.y(); ++j)
+      for (int i = c.lo.x(); i <= c.hi.x() - lag * step.x(); ++i) {
+        const Vec3i q = Vec3i(i, j, k) + lag * step;
+        if (!c.used(i, j, k) || !c.used(q.x(), q.y(), q.z())) continue;
+        acc += (c.input.value(i, j, k) - mean) * (c.input.value(q.x(), q.y(), q.z()) - mean);
+        ++pairs;
+      }
+  if (pairs == 0) return std::nullopt;
+  return acc / static_cast<double>(pairs) / variance;
+}
+
+// The lag (voxels) at which the autocorrelation along `axis` falls to one half; 0 where the axis
+// holds structure.
+float half_lag_vox(const GrainCube& c, int axis, int radius_vox, double mean, double variance) {
+  Vec3i step = Vec3i::Zero();
+  step[axis] = 1;
+  double previous = 1.0;
+  float lag_half = static_cast<float>(radius_vox);  // not reached within the cube
+  for (int lag = 1; lag <= radius_vox; ++lag) {
+    const std::optional<double> r = autocorrelation(c, step, lag, mean, variance);
+    if (!r) break;
+    if (*r <= 0.5 && lag_half >= static_cast<float>(radius_vox))
+      lag_half =
+          static_cast<float>(lag - 1) + static_cast<float>((previous - 0.5) / (previous - *r));
+    // Speckle decorrelates within a few voxels; a correlation still above 0.25 at three voxels
+    // is structure (a wall or tube crossing the cube along this axis), not grain: the axis is
+    // not used (96³ double torus, seed in the tube: 0.47 there, and its grain read 2 voxels).
+    if (lag == 3 && *r > 0.25) return 0.0f;
+    if (lag >= 3 && lag_half < static_cast<float>(radius_vox)) break;
+    previous = *r;
+  }
+  return lag_half;
+}
+
+}  // namespace
+
+float speckle_grain_mm(const Volume& input, const Vec3f& centre_mm, int radius_vox,
+                       const std::vector<std::uint8_t>* excluded) {
   if (input.empty() || radius_vox < 1) return 0.0f;
+  if (excluded && excluded->size() != input.voxel_count())
+    throw std::invalid_argument("speckle_grain_mm: the excluded mask does not match the volume");
   const Vec3i c = input.mm_to_index(centre_mm).array().round().cast<int>();
-  const Vec3i lo = (c.array() - radius_vox).max(0),
-              hi = (c.array() + radius_vox).min(input.dims().array() - 1);
+  const GrainCube cube{input, (c.array() - radius_vox).max(0),
+                       (c.array() + radius_vox).min(input.dims().array() - 1), excluded};
   double sum = 0.0, sum2 = 0.0;
   std::size_t n = 0;
-  for (int k = lo.z(); k <= hi.z(); ++k)
-    for (int j = lo.y(); j <= hi.y(); ++j)
-      for (int i = lo.x(); i <= hi.x(); ++i) {
+  for (int k = cube.lo.z(); k <= cube.hi.z(); ++k)
+    for (int j = cube.lo.y(); j <= cube.hi.y(); ++j)
+      for (int i = cube.lo.x(); i <= cube.hi.x(); ++i) {
+        if (!cube.used(i, j, k)) continue;
         const double v = input.value(i, j, k);
         sum += v;
         sum2 += v * v;
@@ -313,38 +373,9 @@ float speckle_grain_mm(const Volume& input, const Vec3f& centre_mm, int radius_v
   const double variance = sum2 / static_cast<double>(n) - mean * mean;
   if (!(variance > 1e-9 * (1.0 + mean * mean))) return 0.0f;
   float grain_mm = 0.0f;
-  for (int axis = 0; axis < 3; ++axis) {
-    Vec3i step = Vec3i::Zero();
-    step[axis] = 1;
-    double previous = 1.0;
-    float lag_half = static_cast<float>(radius_vox);  // not reached within the cube
-    for (int lag = 1; lag <= radius_vox; ++lag) {
-      double acc = 0.0;
-      std::size_t pairs = 0;
-      for (int k = lo.z(); k <= hi.z() - lag * step.z(); ++k)
-        for (int j = lo.y(); j <= hi.y() - lag * step.y(); ++j)
-          for (int i = lo.x(); i <= hi.x() - lag * step.x(); ++i) {
-            const Vec3i q = Vec3i(i, j, k) + lag * step;
-            acc += (input.value(i, j, k) - mean) * (input.value(q.x(), q.y(), q.z()) - mean);
-            ++pairs;
-          }
-      if (pairs == 0) break;
-      const double r = acc / static_cast<double>(pairs) / variance;
-      if (r <= 0.5 && lag_half >= static_cast<float>(radius_vox))
-        lag_half =
-            static_cast<float>(lag - 1) + static_cast<float>((previous - 0.5) / (previous - r));
-      // Speckle decorrelates within a few voxels; a correlation still above 0.25 at three voxels
-      // is structure (a wall or tube crossing the cube along this axis), not grain: the axis is
-      // not used (96³ double torus, seed in the tube: 0.47 there, and its grain read 2 voxels).
-      if (lag == 3 && r > 0.25) {
-        lag_half = 0.0f;
-        break;
-      }
-      if (lag >= 3 && lag_half < static_cast<float>(radius_vox)) break;
-      previous = r;
-    }
-    grain_mm = std::max(grain_mm, lag_half * input.spacing_mm()[axis]);
-  }
+  for (int axis = 0; axis < 3; ++axis)
+    grain_mm = std::max(
+        grain_mm, half_lag_vox(cube, axis, radius_vox, mean, variance) * input.spacing_mm()[axis]);
   return grain_mm;
 }
 
