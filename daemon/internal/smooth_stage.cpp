@@ -22,25 +22,30 @@ float pre_filter_sigma_mm(const volume::Volume& input, float grain_mm) {
                                                                                    : vox_mm;
 }
 
-// The cube the grain is measured in (volume::speckle_grain_mm's default), and how far round a
-// bright voxel the needle it belongs to reaches (a 64³ phantom's needle is 2.5-3.75 voxels across).
-constexpr int kGrainCubeVox = 6, kNeedleReachVox = 2;
+// The cube the grain is measured in (volume::speckle_grain_mm's default), how far round a bright
+// voxel the needle it belongs to reaches (a 64³ phantom's needle is 2.5-3.75 voxels across), and
+// how many bright voxels in the cube make a structure rather than a grain or two.
+constexpr int kGrainCubeVox = 6, kNeedleReachVox = 2, kMinBrightVoxels = 20;
+// Without a sector's levels, a bright voxel's 7-voxel cross lies over this many times the
+// volume's median (as a caster's over the sector's: shadow_gain.h).
+constexpr float kBrightOverMedian = 1.5f;
 
-// In a volume where the shadow search found a needle, the grain measured again without the cube's
-// bright voxels (crosses over the casters' level, BrightMask) and what lies within
+// The grain measured again without the bright voxels in and beside the cube round the seed (their
+// 7-voxel cross over `level` in the Float32 `image`, BrightMask) and what lies within
 // kNeedleReachVox of them. A needle crossing the cube lengthens the correlation (64³ echo
 // cyst-needles seeded off the centre read 0.88-1.03 mm, 0.79-0.85 from the centre), and a
 // pre-filter at that grain closes the needle's tunnel into a groove the surface wraps (genus 0,
 // called ok).
-float grain_without_needle(const volume::Volume& image, const Vec3f& seed_mm,
-                           const ShadowGain& gain, float grain_mm) {
-  if (gain.casters == 0) return grain_mm;
+float grain_without_needle(const volume::Volume& image, const Vec3f& seed_mm, float level,
+                           float grain_mm) {
   const Vec3i d = image.dims();
   const Vec3i c = image.mm_to_index(seed_mm).array().round().cast<int>();
   std::vector<std::size_t> bright;
-  BrightMask(image, gain.bright_level)
-      .scan({c - Vec3i::Constant(kGrainCubeVox), c + Vec3i::Constant(kGrainCubeVox)}, 1, bright);
-  if (bright.empty()) return grain_mm;
+  BrightMask(image, level)
+      .scan({c - Vec3i::Constant(kGrainCubeVox + kNeedleReachVox),
+             c + Vec3i::Constant(kGrainCubeVox + kNeedleReachVox)},
+            1, bright);
+  if (bright.size() < kMinBrightVoxels) return grain_mm;
   std::vector<std::uint8_t> excluded(image.voxel_count(), 0);
   for (const std::size_t voxel : bright) {
     const Vec3i p = index_of(d, voxel);
@@ -51,6 +56,21 @@ float grain_without_needle(const volume::Volume& image, const Vec3f& seed_mm,
         std::fill_n(&excluded[image.linear_index(lo.x(), j, k)], hi.x() - lo.x() + 1, 1);
   }
   return volume::speckle_grain_mm(image, seed_mm, kGrainCubeVox, &excluded);
+}
+
+// The same for a dark target without a sector (no shadow search to say a needle is there), where
+// the grain would set a coarser pre-filter than one voxel: the simple simulator's 64³
+// cyst-needles seeded off the centre read 0.90-0.99 mm beside the needle. `scratch` receives the
+// input as Float32.
+float grain_without_bright(const volume::Volume& input, const Vec3f& seed_mm, float grain_mm,
+                           volume::Volume& scratch) {
+  if (pre_filter_sigma_mm(input, grain_mm) <= input.spacing_mm().minCoeff()) return grain_mm;
+  copy_as_float32(input, scratch);
+  std::vector<float> sample;
+  const std::vector<float>& v = scratch.f32();
+  for (std::size_t i = 0; i < v.size(); i += 8) sample.push_back(v[i]);
+  const float level = kBrightOverMedian * quantile(std::move(sample), 0.5f);
+  return level > 0.0f ? grain_without_needle(scratch, seed_mm, level, grain_mm) : grain_mm;
 }
 
 }  // namespace
@@ -81,8 +101,12 @@ const std::vector<std::uint8_t>& smooth_stage(const volume::Volume& input, const
     buffers.shadow_casters.reset();
     if (gain.casters_box)
       buffers.shadow_casters = std::pair(gain.casters_box->lo, gain.casters_box->hi);
+    if (gain.casters > 0)
+      result.speckle_grain_mm = grain_without_needle(buffers.working, seed_mm, gain.bright_level,
+                                                     result.speckle_grain_mm);
+  } else if (dark && !no_data.apex_mm && !rewritten) {
     result.speckle_grain_mm =
-        grain_without_needle(buffers.working, seed_mm, gain, result.speckle_grain_mm);
+        grain_without_bright(input, seed_mm, result.speckle_grain_mm, buffers.working);
   }
   const float sigma_mm =
       config.smooth_sigma_mm.value_or(pre_filter_sigma_mm(input, result.speckle_grain_mm));

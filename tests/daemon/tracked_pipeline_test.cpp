@@ -230,25 +230,24 @@ TEST(TrackedPipeline, AThinGenusZeroResultIsAskedAgain) {
   EXPECT_TRUE(internal::dice(*v.labels, lv.truth) >= 0.93 || !v.quality_ok);
 }
 
-// Seeds a voxel or two from the needle, where the balloon wraps it without meeting itself behind
-// it, so the reconstruction passed over it (genus 0 from 11 of 27 seeds round the cyst's centre
-// before): the needle's walls inside the surface open it again.
+// Seeds a voxel or two from the needle, where the balloon wrapped it without meeting itself
+// behind it, so the reconstruction passed over it (genus 0 from 11 of 27 seeds round the cyst's
+// centre before): the needle's walls inside the surface opened it again (docs/stopping.md item
+// 14). Since the grain is measured without the needle (departure 1, session 37) the pre-filter
+// stays at one voxel from these seeds and the balloon's sheets meet behind the needle themselves.
 TEST(TrackedPipeline, SeedsBesideTheNeedleGetItsTunnel) {
   const sim::Phantom p = sim::make_phantom({.phantom = "cyst-needle",
                                             .size_vox = 96,
                                             .spacing_mm = Vec3f::Constant(0.5f),
                                             .time_s = 0.3f});
   ASSERT_EQ(p.genus, 1);
-  int opened = 0;
   for (const Vec3f& seed_mm :
        {Vec3f(23.5f, 23.5f, 23.5f), Vec3f(24.0f, 23.5f, 24.5f), Vec3f(24.5f, 23.5f, 23.5f)}) {
     const PipelineResult r = run_pipeline(p.image, seed_mm, PipelineConfig{});
     ASSERT_TRUE(r.ok && r.labels) << r.error;
     EXPECT_EQ(r.topology.genus, 1) << seed_mm.transpose();
     EXPECT_GE(internal::dice(*r.labels, p.truth), 0.96) << seed_mm.transpose();
-    opened += r.bright_inside_opened;
   }
-  EXPECT_GE(opened, 1);  // (the balloon alone found the tunnel from none of the three)
 }
 
 }  // namespace
