@@ -10,6 +10,7 @@
 #include <array>
 #include <cstdint>
 #include <filesystem>
+#include <functional>
 #include <memory>
 #include <optional>
 #include <string>
@@ -194,10 +195,10 @@ void smooth_gaussian(const Volume& input, float sigma_mm, Volume& out);
 /// correlated above 0.25 at three voxels holds structure, not grain, and is left out. A smoothing
 /// of this sigma averages a grain away; one of a voxel leaves a coarse grain as blobs that stop a
 /// balloon. 0 if the cube holds no variation (a noise-free image); capped at `radius_vox` voxels.
-/// With `excluded` (indexed as Volume::linear_index), its nonzero voxels are not speckle (a
-/// needle) and take no part.
+/// With `excluded`, the voxels (indices) it is true of are not speckle (a needle) and take no
+/// part; it is asked only of the cube's voxels.
 float speckle_grain_mm(const Volume& input, const Vec3f& centre_mm, int radius_vox = 6,
-                       const std::vector<std::uint8_t>* excluded = nullptr);
+                       const std::function<bool(const Vec3i&)>& excluded = {});
 
 /// Central-difference gradient of a volume, in intensity units per mm (one-sided at the borders).
 struct Gradient {

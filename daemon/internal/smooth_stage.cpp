@@ -46,16 +46,23 @@ float grain_without_needle(const volume::Volume& image, const Vec3f& seed_mm, fl
              c + Vec3i::Constant(kGrainCubeVox + kNeedleReachVox)},
             1, bright);
   if (bright.size() < kMinBrightVoxels) return grain_mm;
-  std::vector<std::uint8_t> excluded(image.voxel_count(), 0);
+  // Which voxels of the cube (edge 2·kGrainCubeVox + 1 round c) lie within reach of one.
+  constexpr int kEdge = 2 * kGrainCubeVox + 1;
+  const Vec3i lo = c - Vec3i::Constant(kGrainCubeVox);
+  std::vector<std::uint8_t> excluded(kEdge * kEdge * kEdge, 0);
   for (const std::size_t voxel : bright) {
-    const Vec3i p = index_of(d, voxel);
-    const Vec3i lo = (p.array() - kNeedleReachVox).max(0);
-    const Vec3i hi = (p.array() + kNeedleReachVox).min(d.array() - 1);
-    for (int k = lo.z(); k <= hi.z(); ++k)
-      for (int j = lo.y(); j <= hi.y(); ++j)
-        std::fill_n(&excluded[image.linear_index(lo.x(), j, k)], hi.x() - lo.x() + 1, 1);
+    const Vec3i p = index_of(d, voxel) - lo;
+    const Vec3i from = (p.array() - kNeedleReachVox).max(0);
+    const Vec3i to = (p.array() + kNeedleReachVox).min(kEdge - 1);
+    for (int k = from.z(); k <= to.z(); ++k)
+      for (int j = from.y(); j <= to.y(); ++j)
+        for (int i = from.x(); i <= to.x(); ++i) excluded[(k * kEdge + j) * kEdge + i] = 1;
   }
-  return volume::speckle_grain_mm(image, seed_mm, kGrainCubeVox, &excluded);
+  return volume::speckle_grain_mm(image, seed_mm, kGrainCubeVox, [&](const Vec3i& v) {
+    const Vec3i p = v - lo;
+    return (p.array() >= 0).all() && (p.array() < kEdge).all() &&
+           excluded[(p.z() * kEdge + p.y()) * kEdge + p.x()] != 0;
+  });
 }
 
 // The same for a dark target without a sector (no shadow search to say a needle is there), where

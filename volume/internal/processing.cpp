@@ -300,10 +300,8 @@ namespace {
 struct GrainCube {
   const Volume& input;
   Vec3i lo, hi;
-  const std::vector<std::uint8_t>* excluded;
-  bool used(int i, int j, int k) const {
-    return !excluded || (*excluded)[input.linear_index(i, j, k)] == 0;
-  }
+  const std::function<bool(const Vec3i&)>& excluded;
+  bool used(int i, int j, int k) const { return !excluded || !excluded(Vec3i(i, j, k)); }
 };
 
 // The normalised autocorrelation at `lag` voxels along `step` over the cube's used pairs; nullopt
@@ -350,10 +348,8 @@ float half_lag_vox(const GrainCube& c, int axis, int radius_vox, double mean, do
 }  // namespace
 
 float speckle_grain_mm(const Volume& input, const Vec3f& centre_mm, int radius_vox,
-                       const std::vector<std::uint8_t>* excluded) {
+                       const std::function<bool(const Vec3i&)>& excluded) {
   if (input.empty() || radius_vox < 1) return 0.0f;
-  if (excluded && excluded->size() != input.voxel_count())
-    throw std::invalid_argument("speckle_grain_mm: the excluded mask does not match the volume");
   const Vec3i c = input.mm_to_index(centre_mm).array().round().cast<int>();
   const GrainCube cube{input, (c.array() - radius_vox).max(0),
                        (c.array() + radius_vox).min(input.dims().array() - 1), excluded};
