@@ -1,7 +1,8 @@
 // process_bench: per-stage time of the pipeline (daemon::run_pipeline, what `sonomeshd process`
 // and every daemon job run) on simulator phantoms of 128³ and 256³.
 //   process_bench [--sizes 128,256] [--phantoms cyst-needle,torus] [--repeat 5] [--format md|json]
-//                 [--fresh-buffers] [--no-labels] [--no-coarse-start]
+//                 [--fresh-buffers] [--no-labels] [--no-coarse-start] [--finest-always]
+//                 [--realism simple|echo] [--contrast 0.7]
 //   process_bench --hash [--sizes 96,128] [--phantoms ...] [--threads 1,2]
 // --hash prints, per case, a 64-bit FNV-1a hash of the balloon (positions and stop reasons) and of
 // the final mesh (positions and triangles) instead of timings: a refactoring must keep them.
@@ -12,6 +13,9 @@
 // then the deepest-point search alone. --no-coarse-start runs the plain cold start (the sphere at
 // full resolution) instead of the coarse-to-fine one; the `c2f` column is the coarse-to-fine
 // start's downsampling + coarse pass + fine pass (ms, medians), "-" when it was not used.
+// --finest-always runs the full-resolution pass after the coarse one even where the coarse
+// balloon could stand for it (PipelineConfig::coarse_start_finest_when_needed off).
+// --realism echo makes the phantoms with sim::with_echo_realism at --contrast.
 // Targets (DESIGN/issue 4): total <= 100 ms at 128³, <= 750 ms at 256³.
 #include <CLI/CLI.hpp>
 #include <algorithm>
@@ -76,16 +80,33 @@ double median(std::vector<double> values) {
 
 }  // namespace
 
+struct BenchSettings {
+  int repeat = 5;
+  bool fresh_buffers = false, want_labels = true, coarse_start = true, finest_always = false;
+  std::string realism = "simple";
+  float contrast = 0.7f;
+  std::string format = "md";
+};
+
+sim::Phantom bench_phantom(const std::string& name, int size, const BenchSettings& settings) {
+  sim::PhantomSpec spec{.phantom = name, .size_vox = size};
+  if (settings.realism == "echo") spec = sim::with_echo_realism(spec);
+  spec.contrast = settings.contrast;
+  return sim::make_phantom(spec);
+}
+
 // One phantom at one size: `repeat` timed runs after a warm-up, their medians printed as a row.
-void bench_case(const std::string& name, int size, int repeat, bool fresh_buffers, bool want_labels,
-                bool coarse_start, const std::string& format) {
-  const sim::Phantom phantom = sim::make_phantom({.phantom = name, .size_vox = size});
+void bench_case(const std::string& name, int size, const BenchSettings& settings) {
+  const sim::Phantom phantom = bench_phantom(name, size, settings);
   daemon::PipelineConfig config;
-  config.want_labels = want_labels;
-  config.coarse_start = coarse_start;
+  config.want_labels = settings.want_labels;
+  config.coarse_start = settings.coarse_start;
+  config.coarse_start_finest_when_needed = !settings.finest_always;
+  const int repeat = settings.repeat;
+  const std::string& format = settings.format;
   daemon::PipelineBuffers buffers;
   auto run = [&] {
-    if (fresh_buffers) buffers = daemon::PipelineBuffers{};
+    if (settings.fresh_buffers) buffers = daemon::PipelineBuffers{};
     return daemon::run_pipeline(phantom.image, phantom.seed_mm, config, buffers);
   };
   daemon::PipelineResult result = run();
@@ -152,17 +173,21 @@ int main(int argc, char** argv) {
   CLI::App app{"process_bench: per-stage pipeline time"};
   std::vector<int> sizes{128, 256};
   std::vector<std::string> phantoms{"sphere", "cyst-needle"};
-  int repeat = 5;
-  std::string format = "md";
-  bool fresh_buffers = false, hash = false, no_labels = false, no_coarse_start = false;
+  BenchSettings settings;
+  bool hash = false, no_labels = false, no_coarse_start = false;
   std::vector<int> threads{1, 2};
   app.add_option("--sizes", sizes, "Volume edges (voxels)")->delimiter(',');
   app.add_option("--phantoms", phantoms, "Phantom names")->delimiter(',');
-  app.add_option("--repeat", repeat, "Timed runs per case")->check(CLI::Range(1, 100));
-  app.add_option("--format", format, "md or json")->check(CLI::IsMember({"md", "json"}));
-  app.add_flag("--fresh-buffers", fresh_buffers, "Allocate the smoothing buffers per run");
+  app.add_option("--repeat", settings.repeat, "Timed runs per case")->check(CLI::Range(1, 100));
+  app.add_option("--format", settings.format, "md or json")->check(CLI::IsMember({"md", "json"}));
+  app.add_flag("--fresh-buffers", settings.fresh_buffers, "Allocate the smoothing buffers per run");
   app.add_flag("--no-labels", no_labels, "Skip the label volume (the deepest point only)");
   app.add_flag("--no-coarse-start", no_coarse_start, "The plain cold start at full resolution");
+  app.add_flag("--finest-always", settings.finest_always,
+               "The full-resolution pass after every coarse one");
+  app.add_option("--realism", settings.realism, "Image model")
+      ->check(CLI::IsMember({"simple", "echo"}));
+  app.add_option("--contrast", settings.contrast, "Target contrast")->check(CLI::Range(0.0, 1.0));
   app.add_flag("--hash", hash, "Print balloon and mesh hashes instead of timings");
   app.add_option("--threads", threads, "Thread counts for --hash")->delimiter(',');
   try {
@@ -173,15 +198,17 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "process_bench: %s\n", e.what());
     return 2;
   }
+  settings.want_labels = !no_labels;
+  settings.coarse_start = !no_coarse_start;
   if (hash) {
     try {
-      return print_hashes(sizes, phantoms, threads, !no_coarse_start);
+      return print_hashes(sizes, phantoms, threads, settings.coarse_start);
     } catch (const std::exception& e) {
       std::fprintf(stderr, "process_bench: %s\n", e.what());
       return 1;
     }
   }
-  if (format == "md") {
+  if (settings.format == "md") {
     std::printf(
         "| phantom | size | smooth | balloon | opening | reconstruct | mesh | reinflate "
         "| resurface | labels | total (ms) | target | balloon iterations | grid | c2f |\n");
@@ -190,7 +217,7 @@ int main(int argc, char** argv) {
   try {
     for (const int size : sizes)
       for (const std::string& name : phantoms) {
-        bench_case(name, size, repeat, fresh_buffers, !no_labels, !no_coarse_start, format);
+        bench_case(name, size, settings);
         std::fflush(stdout);
       }
   } catch (const std::exception& e) {

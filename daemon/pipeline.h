@@ -83,6 +83,10 @@ struct PipelineConfig {
   float coarse_start_inset_vox = 2.0f;  // the fine pass's inset, full-resolution voxels
   int coarse_start_min_vox = 48;        // least coarse voxels per axis (96³ inputs and up)
   int coarse_start_max_levels = 2;      // halvings at most (256³: 128³ and 64³)
+  // The full-resolution pass only where the coarser balloon cannot stand for it: a balloon
+  // that ended clean, at a contrast that is not low (daemon/internal/coarse_start.cpp).
+  bool coarse_start_finest_when_needed = true;
+  int coarse_start_stand_in_min_vox = 64;  // least voxels per axis of a grid that stands in
   /// Surface tracking (issue 17): a warm volume fits the previous result's surface to this
   /// volume's wall (segment::fit_to_wall) instead of inflating a balloon and reconstructing, when
   /// the checks of daemon/internal/track.h pass; at most this many volumes in a row, then a cold
@@ -222,7 +226,8 @@ struct PipelineResult {
     std::string fallback_reason;
     double downsample_ms = 0.0, coarse_ms = 0.0, fine_ms = 0.0;
     int coarse_iterations = 0;
-    int levels = 0;  // halvings of the coarsest grid
+    int levels = 0;               // halvings of the coarsest grid
+    bool finest_skipped = false;  // the balloon is the grid's above the input's
   } coarse_start;
 
   StageTimings timings;

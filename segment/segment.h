@@ -198,6 +198,14 @@ struct BalloonResult {
 BalloonResult inflate_balloon(const volume::Volume& smoothed, const Vec3f& seed_mm,
                               const BalloonOptions& options = {}, std::stop_token stop = {});
 
+/// The seed region's statistics on `smoothed` written into `stats`, as a balloon inflated there
+/// would take them: seed_level, seed_sigma, tissue_level, noise_rise_per_mm, tau_cost_used and
+/// tau_climb_used. Returns why the seed cannot start a balloon there, or empty. For a balloon
+/// inflated on a coarser grid that stands for the pass on this one: the later stages and the
+/// verdict then read this grid's levels. Same throws as inflate_balloon.
+std::string measure_seed_region(const volume::Volume& smoothed, const Vec3f& seed_mm,
+                                const BalloonOptions& options, BalloonStats& stats);
+
 /// How far inside the previous balloon a warm start begins.
 struct WarmStartOptions {
   float inset_mm = 0.0f;  // the erosion of its interior; at least 2 voxels (raised to that)

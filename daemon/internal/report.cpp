@@ -75,7 +75,8 @@ nlohmann::json report_json(const PipelineResult& result, const std::string& inpu
                               {"coarse_ms", c.coarse_ms},
                               {"fine_ms", c.fine_ms},
                               {"coarse_iterations", c.coarse_iterations},
-                              {"levels", c.levels}};
+                              {"levels", c.levels},
+                              {"finest_skipped", c.finest_skipped}};
   else if (!c.fallback_reason.empty())
     report["coarse_start"] = {{"fallback_reason", c.fallback_reason}};
   report["smoothing"] = {{"sigma_mm", result.smooth_sigma_mm},

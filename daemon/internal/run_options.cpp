@@ -229,6 +229,12 @@ std::vector<OptionSpec> pipeline_options() {
                   "least voxels per axis of a coarse grid", REF(pipeline.coarse_start_min_vox)));
   o.push_back(num("pipeline", "coarse_start_max_levels", "levels", closed(1, 4),
                   "halvings of the volume at most", REF(pipeline.coarse_start_max_levels)));
+  o.push_back(flag("pipeline", "coarse_start_finest_when_needed",
+                   "the full-resolution pass only where the coarse balloon cannot stand in",
+                   REF(pipeline.coarse_start_finest_when_needed)));
+  o.push_back(num("pipeline", "coarse_start_stand_in_min_vox", "vox", closed(8, 4096),
+                  "least voxels per axis of a coarse grid whose balloon stands in",
+                  REF(pipeline.coarse_start_stand_in_min_vox)));
   o.push_back(flag("pipeline", "shadow_gain", "lift a needle's shadow", REF(pipeline.shadow_gain)));
   o.push_back(num("pipeline", "track_max_chain", "volumes", closed(0, 1000),
                   "volumes in a row fitting the last surface", REF(pipeline.track_max_chain)));

@@ -233,6 +233,11 @@ BalloonResult inflate_balloon(const volume::Volume& smoothed_in, const Vec3f& se
   return evolve(pre, options, start_sphere(seed_mm, radius_mm), result, stop);
 }
 
+std::string measure_seed_region(const volume::Volume& smoothed, const Vec3f& seed_mm,
+                                const BalloonOptions& options, BalloonStats& stats) {
+  return Prelude(smoothed, seed_mm, options, stats).error;
+}
+
 BalloonResult inflate_balloon_from(const volume::Volume& smoothed_in, const Mesh& start_mesh,
                                    const Vec3f& seed_mm, const BalloonOptions& options,
                                    const WarmStartOptions& warm, std::stop_token stop) {

@@ -54,6 +54,45 @@ TEST(CoarseStartPipeline, AgreesWithThePlainColdStartOnADoubleTorus) {
   agrees_with_plain_cold_start("double-torus");
 }
 
+// A coarse balloon that ended clean, whose fronts never met, at a contrast that is not low,
+// stands for the full-resolution pass: the same surface within the Dice the wall fit leaves, the
+// full resolution's seed levels for the later stages. One whose fronts met does not: only the
+// finer pass decides a seam. (At 96³ the coarse grid is 48³, below the default least grid that
+// stands in: the test lowers it.)
+PipelineResult stand_in_run(const sim::Phantom& p, bool finest_when_needed) {
+  PipelineConfig config;
+  config.coarse_start_finest_when_needed = finest_when_needed;
+  config.coarse_start_stand_in_min_vox = kSize / 2;
+  return run_pipeline(p.image, p.seed_mm, config);
+}
+
+TEST(CoarseStartPipeline, ACleanCoarseBalloonWithoutSeamsStandsForTheFinestPass) {
+  const sim::Phantom p = sim::make_phantom({.phantom = "sphere", .size_vox = kSize});
+  const PipelineResult always = stand_in_run(p, false);
+  const PipelineResult needed = stand_in_run(p, true);
+  ASSERT_TRUE(always.ok && needed.ok) << always.error << needed.error;
+  EXPECT_FALSE(always.coarse_start.finest_skipped);
+  EXPECT_TRUE(needed.coarse_start.finest_skipped);
+  EXPECT_EQ(needed.coarse_start.fine_ms, 0.0);
+  EXPECT_EQ(needed.topology.genus, 0);
+  EXPECT_TRUE(needed.quality_ok) << needed.quality_reasons.size();
+  EXPECT_GE(internal::dice(*needed.labels, p.truth),
+            internal::dice(*always.labels, p.truth) - 0.005);
+  EXPECT_EQ(needed.balloon_stats.seed_level, always.balloon_stats.seed_level);
+  EXPECT_EQ(needed.balloon_stats.tissue_level, always.balloon_stats.tissue_level);
+  const nlohmann::json report = report_json(needed, "sphere", p.image, p.seed_mm);
+  EXPECT_TRUE(report.at("coarse_start").at("finest_skipped").get<bool>());
+}
+
+TEST(CoarseStartPipeline, ACoarseBalloonWhoseFrontsMetTakesTheFinestPass) {
+  const sim::Phantom p = sim::make_phantom({.phantom = "cyst-needle", .size_vox = kSize});
+  const PipelineResult r = stand_in_run(p, true);
+  ASSERT_TRUE(r.ok) << r.error;
+  EXPECT_FALSE(r.coarse_start.finest_skipped);
+  EXPECT_GT(r.coarse_start.fine_ms, 0.0);
+  EXPECT_EQ(r.topology.genus, 1);
+}
+
 // Below 96³ there is no coarse grid: the plain cold start runs, and that is not a fallback.
 TEST(CoarseStartPipeline, SmallVolumesStartPlain) {
   const sim::Phantom p = sim::make_phantom({.phantom = "sphere", .size_vox = 64});
