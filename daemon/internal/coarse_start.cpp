@@ -88,20 +88,21 @@ segment::BalloonOptions bounded(segment::BalloonOptions passes, const segment::M
 // `smoothed`: the reinflation and the wall fit take its reconstruction the last voxel or two to
 // the wall, as they take the full-resolution balloon's (128³ sphere and lv: the same Dice for
 // 25-30 ms less). It must have ended clean: every vertex stopped, or the few a stall left, nothing
-// sealed, no restart. Its fronts must not have met: the finer pass decides each seam again, and a
-// seam the coarse grid alone decided made wrong handles (128³ echo sphere and cyst-needle: genus
-// 1 and 2, called ok). And the seed region at full resolution must not be of a low contrast,
+// sealed, no restart. Its fronts must not have met unless `seams_decided` (it is itself a finer
+// pass, whose fronts met again on its own grid): the finer pass decides each seam again, and a
+// seam the coarsest grid alone decided made wrong handles (128³ echo sphere and cyst-needle:
+// genus 1 and 2, called ok). And the seed region at full resolution must not be of a low contrast,
 // where the coarser balloon stops on blood-pool speckle the finer pass inflates past (96³ echo
 // at contrast 0.3: 12 % smaller). Its stats then take the full resolution's levels, which the
 // later stages and the verdict read.
 bool stands_for_finest(const volume::Volume& smoothed, const volume::Volume& coarse,
                        const volume::Vec3f& seed_mm, const segment::BalloonOptions& options,
-                       int least_vox, segment::BalloonResult& balloon) {
+                       int least_vox, bool seams_decided, segment::BalloonResult& balloon) {
   using segment::StopReason;
   const segment::BalloonStats& stats = balloon.stats;
   const auto count = [&](StopReason reason) { return std::ranges::count(balloon.stop, reason); };
   if (coarse.dims().minCoeff() < least_vox || !balloon.converged || stats.leak_seals > 0 ||
-      stats.crumple_restarts > 0 || count(StopReason::SelfIntersection) > 0 ||
+      stats.crumple_restarts > 0 || (!seams_decided && count(StopReason::SelfIntersection) > 0) ||
       count(StopReason::IterationLimit) > 0 ||
       100 * count(StopReason::Moving) > static_cast<std::ptrdiff_t>(balloon.stop.size()))
     return false;
@@ -132,7 +133,8 @@ std::string from_level(const volume::Volume& smoothed, const std::vector<volume:
   t = Clock::now();
   for (int level = top - 1; level >= 0; --level) {
     if (level == 0 && options.finest_when_needed &&
-        stands_for_finest(smoothed, grid(1), seed_mm, passes, options.stand_in_min_vox, balloon)) {
+        stands_for_finest(smoothed, grid(1), seed_mm, passes, options.stand_in_min_vox, top > 1,
+                          balloon)) {
       report.finest_skipped = true;
       return {};
     }
