@@ -83,8 +83,8 @@ struct PipelineConfig {
   float coarse_start_inset_vox = 2.0f;  // the fine pass's inset, full-resolution voxels
   int coarse_start_min_vox = 48;        // least coarse voxels per axis (96³ inputs and up)
   int coarse_start_max_levels = 2;      // halvings at most (256³: 128³ and 64³)
-  // The full-resolution pass only where the coarser balloon cannot stand for it: a balloon
-  // that ended clean, at a contrast that is not low (daemon/internal/coarse_start.cpp).
+  // The full-resolution pass only where the coarser balloon cannot stand for it: one that ended
+  // clean without fronts that met, at a contrast that is not low (docs/tuning.md).
   bool coarse_start_finest_when_needed = true;
   int coarse_start_stand_in_min_vox = 64;  // least voxels per axis of a grid that stands in
   /// Surface tracking (issue 17): a warm volume fits the previous result's surface to this

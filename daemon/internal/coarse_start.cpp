@@ -85,16 +85,13 @@ segment::BalloonOptions bounded(segment::BalloonOptions passes, const segment::M
 }
 
 // Whether `balloon`, from `coarse`, the grid above `smoothed`, stands for the pass on
-// `smoothed`: the reinflation and the wall fit take its reconstruction the last voxel or two to
-// the wall, as they take the full-resolution balloon's (128³ sphere and lv: the same Dice for
-// 25-30 ms less). It must have ended clean: every vertex stopped, or the few a stall left, nothing
-// sealed, no restart. Its fronts must not have met unless `seams_decided` (it is itself a finer
-// pass, whose fronts met again on its own grid): the finer pass decides each seam again, and a
-// seam the coarsest grid alone decided made wrong handles (128³ echo sphere and cyst-needle:
-// genus 1 and 2, called ok). And the seed region at full resolution must not be of a low contrast,
-// where the coarser balloon stops on blood-pool speckle the finer pass inflates past (96³ echo
-// at contrast 0.3: 12 % smaller). Its stats then take the full resolution's levels, which the
-// later stages and the verdict read.
+// `smoothed`, whose last voxel or two to the wall the reinflation and the wall fit then take
+// (docs/tuning.md, "Coarse-to-fine cold start"). It must have ended clean: converged, no seal, no
+// restart, none at the limit, at most 1 % still moving. Its fronts must not have met unless
+// `seams_decided` (it is itself a finer pass): only a finer pass decides a seam, and seams the
+// coarsest grid decided made wrong handles called ok. And the contrast at full resolution must
+// not be low, where a coarser balloon stops on the blood pool's speckle. Its stats then take the
+// full resolution's levels, which the later stages and the verdict read.
 bool stands_for_finest(const volume::Volume& smoothed, const volume::Volume& coarse,
                        const volume::Vec3f& seed_mm, const segment::BalloonOptions& options,
                        int least_vox, bool seams_decided, segment::BalloonResult& balloon) {

@@ -1,7 +1,8 @@
 #pragma once
 /// @file
 /// @brief The coarse-to-fine cold start (issue 17): the balloon inflates on the smoothed volume
-/// downsampled by two, then a short warm start at full resolution takes it to the wall.
+/// downsampled by two, then a short warm start at full resolution takes it to the wall, where the
+/// coarse balloon cannot stand for that pass.
 
 #include <stop_token>
 #include <string>
@@ -33,8 +34,7 @@ struct CoarseStartOptions {
   // (stands_for_finest in coarse_start.cpp); false: always.
   bool finest_when_needed = true;
   // A coarser grid than this many voxels per axis never stands for the full resolution: it
-  // blurs detail past what the reinflation and the wall fit take back (96³ echo lv at contrast
-  // 0.5, coarse 48³: Dice 0.955-0.968 → 0.911-0.947).
+  // blurs detail past what the reinflation and the wall fit take back (a 96³ echo lv's 48³).
   int stand_in_min_vox = 64;
 };
 
@@ -57,7 +57,9 @@ bool downsample_by_two(const volume::Volume& smoothed, int min_vox, volume::Volu
 /// opened, so the fronts meet again on the finer grid and mark the tunnels there. An attempt
 /// that is refused, leaks or gives an unsafe start is retried from the next finer grid, and the
 /// plain segment::inflate_balloon on `smoothed` comes last (report.fallback_reason says why), so a
-/// volume the coarse grids cannot segment costs only the failed attempts.
+/// volume the coarse grids cannot segment costs only the failed attempts. With
+/// finest_when_needed the pass on `smoothed` itself is left out where the balloon above it can
+/// stand for it (report.finest_skipped): the result's stats are then `smoothed`'s seed levels.
 segment::BalloonResult coarse_to_fine_balloon(const volume::Volume& smoothed,
                                               std::vector<volume::Volume>& pyramid,
                                               const volume::Vec3f& seed_mm,
