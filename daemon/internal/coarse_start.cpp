@@ -28,6 +28,14 @@ std::string coarse_failure(const segment::BalloonResult& coarse) {
 
 }  // namespace
 
+CoarseStartOptions coarse_start_options(const PipelineConfig& config) {
+  return {.inset_vox = config.coarse_start_inset_vox,
+          .min_coarse_vox = config.coarse_start_min_vox,
+          .max_levels = config.coarse_start_max_levels,
+          .finest_when_needed = config.coarse_start_finest_when_needed,
+          .stand_in_min_vox = config.coarse_start_stand_in_min_vox};
+}
+
 bool downsample_by_two(const volume::Volume& smoothed, int min_vox, volume::Volume& coarse) {
   if (smoothed.type() != volume::VoxelType::Float32) return false;
   const volume::Vec3i dims = smoothed.dims() / 2;

@@ -38,6 +38,9 @@ struct CoarseStartOptions {
   int stand_in_min_vox = 64;
 };
 
+/// The options `config`'s coarse_start_* fields set (the rest as CoarseStartOptions has them).
+CoarseStartOptions coarse_start_options(const PipelineConfig& config);
+
 /// What the coarse-to-fine start did, for the report and the benchmarks (fine_ms: every finer
 /// pass, and the plain cold start when it ran instead).
 using CoarseStartReport = PipelineResult::CoarseStart;

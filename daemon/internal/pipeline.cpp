@@ -99,14 +99,9 @@ segment::BalloonResult cold_balloon(PipelineBuffers& buffers, const Vec3f& seed_
                                     PipelineResult& result) {
   if (!config.coarse_start)
     return segment::inflate_balloon(buffers.smoothed, seed_mm, config.balloon, stop);
-  return internal::coarse_to_fine_balloon(
-      buffers.smoothed, buffers.pyramid, seed_mm, config.balloon,
-      {.inset_vox = config.coarse_start_inset_vox,
-       .min_coarse_vox = config.coarse_start_min_vox,
-       .max_levels = config.coarse_start_max_levels,
-       .finest_when_needed = config.coarse_start_finest_when_needed,
-       .stand_in_min_vox = config.coarse_start_stand_in_min_vox},
-      stop, result.coarse_start);
+  return internal::coarse_to_fine_balloon(buffers.smoothed, buffers.pyramid, seed_mm,
+                                          config.balloon, internal::coarse_start_options(config),
+                                          stop, result.coarse_start);
 }
 
 // §1-3: the balloon, from the warm start's mesh when one is given and safe on this volume, else
