@@ -188,6 +188,14 @@ Volume smooth_gaussian(const Volume& input, float sigma_mm);
 /// (a per-volume pipeline then allocates nothing; fresh 8 MB buffers cost page faults). `out` must
 /// not be `input`.
 void smooth_gaussian(const Volume& input, float sigma_mm, Volume& out);
+/// Same, but only the voxels of the index box [lo, hi) (clamped to the grid) are written, each
+/// as the whole volume's smoothing gives it (the filter reads the input beyond the box); the rest
+/// of `out` keeps what it held. For a reader that looks only near a known place (a tracked
+/// surface): at 128³ a box round a target costs a fraction of the whole.
+void smooth_gaussian(const Volume& input, float sigma_mm, const Vec3i& lo, const Vec3i& hi,
+                     Volume& out);
+/// How many voxels along each axis smooth_gaussian reads beyond a voxel of `like`'s grid.
+Vec3i smoothing_reach_vox(const Volume& like, float sigma_mm);
 
 /// The speckle's grain around a point, in mm: per grid axis, the lag at which the normalised
 /// autocorrelation of the raw intensities in a cube of `radius_vox` voxels around `centre_mm`

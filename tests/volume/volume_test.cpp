@@ -243,6 +243,35 @@ TEST(Sampling, TrilinearIsExactOnLinearFunctionsAndClampsOutside) {
   EXPECT_FLOAT_EQ(sample_mm(flat, Vec3f(1.5f, 1.0f, 3.0f)), 4.0f);
 }
 
+// The box's voxels as the whole volume's smoothing gives them, at the faces and inside; the rest
+// untouched. (Anisotropic spacing: a kernel of its own length per axis.)
+TEST(Smoothing, ABoxIsSmoothedAsTheWholeVolumeAndNothingElse) {
+  Volume v(Vec3i(40, 36, 30), Vec3f(0.5f, 0.4f, 0.7f), Vec3f(1, 2, 3), VoxelType::UInt8);
+  std::mt19937 rng(5);
+  for (auto& x : v.u8()) x = static_cast<std::uint8_t>(rng());
+  const Volume whole = smooth_gaussian(v, 1.1f);
+  for (const auto& [lo, hi] : {std::pair(Vec3i(5, 7, 9), Vec3i(31, 22, 20)),
+                               std::pair(Vec3i(-4, 0, 12), Vec3i(12, 50, 30))}) {
+    Volume out(v.dims(), v.spacing_mm(), v.origin_mm(), VoxelType::Float32);
+    std::fill(out.f32().begin(), out.f32().end(), -1.0f);
+    smooth_gaussian(v, 1.1f, lo, hi, out);
+    int inside = 0;
+    for (int k = 0; k < 30; ++k)
+      for (int j = 0; j < 36; ++j)
+        for (int i = 0; i < 40; ++i) {
+          const std::size_t at = v.linear_index(i, j, k);
+          const Vec3i p(i, j, k);
+          if ((p.array() >= lo.array()).all() && (p.array() < hi.array()).all()) {
+            ++inside;
+            ASSERT_NEAR(out.f32()[at], whole.f32()[at], 1e-4f) << i << " " << j << " " << k;
+          } else {
+            ASSERT_EQ(out.f32()[at], -1.0f) << i << " " << j << " " << k;
+          }
+        }
+    EXPECT_GT(inside, 1000);
+  }
+}
+
 TEST(Smoothing, IntoOverloadsReuseBuffersAndMatchFreshResults) {
   Volume v(Vec3i(20, 18, 16), Vec3f(1.0f, 0.8f, 1.5f), Vec3f(1, 2, 3), VoxelType::UInt8);
   std::mt19937 rng(4);
