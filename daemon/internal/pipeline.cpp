@@ -389,7 +389,11 @@ PipelineResult run_volume(const volume::Volume& input, const Vec3f& seed_mm,
   const ShadowSearch search = !track                               ? ShadowSearch::Whole
                               : warm->previous->shadow_voxels == 0 ? ShadowSearch::None
                                                                    : ShadowSearch::NearLast;
-  no_data = &internal::smooth_stage(input, seed_mm, config, buffers, result, search);
+  // A tracked volume's readers look near the last surface: only that region is smoothed.
+  const std::optional<internal::IndexBox> region =
+      track ? std::optional(internal::tracked_region(input, *warm->previous)) : std::nullopt;
+  no_data = &internal::smooth_stage(input, seed_mm, config, buffers, result, search,
+                                    region ? &*region : nullptr);
   if (stop.stop_requested()) return finish("stopped");
   if (track) {
     try {
@@ -400,11 +404,9 @@ PipelineResult run_volume(const volume::Volume& input, const Vec3f& seed_mm,
     }
     judged = result.tracking.refused.empty();
     if (judged) return finish("");
-    if (search != ShadowSearch::Whole && config.shadow_gain) {
-      const double tracked_ms = result.timings.smooth_ms;
-      no_data = &internal::smooth_stage(input, seed_mm, config, buffers, result);
-      result.timings.smooth_ms += tracked_ms;
-    }
+    const double tracked_ms = result.timings.smooth_ms;  // (the balloon reads the whole volume)
+    no_data = &internal::smooth_stage(input, seed_mm, config, buffers, result);
+    result.timings.smooth_ms += tracked_ms;
   }
   // A tracked result carries the balloon of its chain's first volume, which the target has moved
   // on from since (a warm balloon from it came out at Dice 0.975 where a cold one gives 0.984):

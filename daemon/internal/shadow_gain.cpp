@@ -281,14 +281,15 @@ std::pair<Vec3i, Vec3i> shadow_box(const Beams& beams, const std::vector<std::si
   return {from, to};
 }
 
-// Multiplies every data voxel in the casters' shadow by `lift` (less on its edge); counts them
-// into `lifted`.
+// Multiplies every data voxel in the casters' shadow (and in `within`, when given) by `lift`
+// (less on its edge); counts them into `lifted`.
 void lift_shadow(const Beams& beams, const std::vector<std::size_t>& casters, float lift,
-                 int threads, Volume& image, std::size_t& lifted) {
+                 int threads, const IndexBox* within, Volume& image, std::size_t& lifted) {
   const ShadowMap shadow(beams, casters);
   // (Not a structured binding: the lambda below captures the box, which clang 14 refuses.)
   const std::pair<Vec3i, Vec3i> box = shadow_box(beams, casters);
-  const Vec3i from = box.first, to = box.second;
+  const Vec3i from = within ? box.first.cwiseMax(within->lo) : box.first;
+  const Vec3i to = within ? box.second.cwiseMin(within->hi) : box.second;
   std::vector<float>& v = image.f32();
   std::vector<std::size_t> counts(static_cast<std::size_t>(threads), 0);
   mesh::parallel_chunks(
@@ -392,7 +393,8 @@ float quantile(std::vector<float> v, float q) {
 // One factor for the volume, the casters' median: a single caster's ratio varies with the speckle
 // along its beam (the lower quartile over-lifted and made columns of lifted speckle).
 ShadowGain compensate_shadows(Volume& image, const std::vector<std::uint8_t>& no_data,
-                              const Vec3f& apex_mm, int threads, const IndexBox* near) {
+                              const Vec3f& apex_mm, int threads, const IndexBox* near,
+                              const IndexBox* within) {
   ShadowGain gain;
   if (no_data.empty() || image.type() != volume::VoxelType::Float32) return gain;
   const SectorLevels levels = sector_levels(image, no_data);
@@ -413,7 +415,7 @@ ShadowGain compensate_shadows(Volume& image, const std::vector<std::uint8_t>& no
   gain.casters = static_cast<int>(casters.size());
   gain.shadow_factor = std::max(0.1f, quantile(ratios, 0.5f));
   gain.casters_box = bounding_box(image.dims(), casters);
-  lift_shadow(beams, casters, 1.0f / gain.shadow_factor, threads, image, gain.voxels);
+  lift_shadow(beams, casters, 1.0f / gain.shadow_factor, threads, within, image, gain.voxels);
   return gain;
 }
 

@@ -44,9 +44,10 @@ struct ShadowGain {
 /// more than a voxel before it (less on its edge). `threads` as segment::BalloonOptions::threads;
 /// the result is the same for any count. With `near` (the last volume's casters_box) only the
 /// clusters with a voxel in that box grown by 6 voxels are judged (each grown whole), and all of
-/// them where that finds no caster.
+/// them where that finds no caster. With `within` (an index box, both ends in) only its voxels
+/// are lifted and counted.
 ShadowGain compensate_shadows(volume::Volume& image, const std::vector<std::uint8_t>& no_data,
                               const volume::Vec3f& apex_mm, int threads = 0,
-                              const IndexBox* near = nullptr);
+                              const IndexBox* near = nullptr, const IndexBox* within = nullptr);
 
 }  // namespace sonomesh::daemon::internal

@@ -80,12 +80,21 @@ float grain_without_bright(const volume::Volume& input, const Vec3f& seed_mm, fl
   return level > 0.0f ? grain_without_needle(scratch, seed_mm, level, grain_mm) : grain_mm;
 }
 
+// What smoothing `region` reads at the widest pre-filter smooth_stage may choose: the configured
+// one, else 3 voxels of the finest axis (pre_filter_sigma_mm).
+IndexBox read_by_smoothing(const volume::Volume& input, const PipelineConfig& config,
+                           const IndexBox& region) {
+  const float widest_mm = config.smooth_sigma_mm.value_or(3.0f * input.spacing_mm().minCoeff());
+  const Vec3i reach = volume::smoothing_reach_vox(input, widest_mm);
+  return {region.lo - reach, region.hi + reach};
+}
+
 }  // namespace
 
 const std::vector<std::uint8_t>& smooth_stage(const volume::Volume& input, const Vec3f& seed_mm,
                                               const PipelineConfig& config,
                                               PipelineBuffers& buffers, PipelineResult& result,
-                                              ShadowSearch search) {
+                                              ShadowSearch search, const IndexBox* region) {
   static const NoDataRegion kNone;
   const auto t = Clock::now();
   result.speckle_grain_mm = volume::speckle_grain_mm(input, seed_mm, kGrainCubeVox);
@@ -101,8 +110,11 @@ const std::vector<std::uint8_t>& smooth_stage(const volume::Volume& input, const
     std::optional<IndexBox> near;
     if (search == ShadowSearch::NearLast && buffers.shadow_casters)
       near = IndexBox{buffers.shadow_casters->first, buffers.shadow_casters->second};
-    const ShadowGain gain = compensate_shadows(buffers.working, no_data.mask, *no_data.apex_mm,
-                                               config.balloon.threads, near ? &*near : nullptr);
+    const std::optional<IndexBox> lifted =
+        region ? std::optional(read_by_smoothing(input, config, *region)) : std::nullopt;
+    const ShadowGain gain =
+        compensate_shadows(buffers.working, no_data.mask, *no_data.apex_mm, config.balloon.threads,
+                           near ? &*near : nullptr, lifted ? &*lifted : nullptr);
     result.shadow_factor = gain.shadow_factor;
     result.shadow_voxels = gain.voxels;
     buffers.shadow_casters.reset();
@@ -118,7 +130,12 @@ const std::vector<std::uint8_t>& smooth_stage(const volume::Volume& input, const
   const float sigma_mm =
       config.smooth_sigma_mm.value_or(pre_filter_sigma_mm(input, result.speckle_grain_mm));
   result.smooth_sigma_mm = sigma_mm;
-  volume::smooth_gaussian(rewritten ? buffers.working : input, sigma_mm, buffers.smoothed);
+  const volume::Volume& image = rewritten ? buffers.working : input;
+  if (region)
+    volume::smooth_gaussian(image, sigma_mm, region->lo, region->hi + Vec3i::Ones(),
+                            buffers.smoothed);
+  else
+    volume::smooth_gaussian(image, sigma_mm, buffers.smoothed);
   result.timings.smooth_ms = ms_since(t);
   return no_data.mask;
 }

@@ -9,6 +9,7 @@
 #include <string>
 #include <vector>
 
+#include "daemon/internal/bright_mask.h"
 #include "daemon/internal/clock.h"
 #include "daemon/pipeline.h"
 
@@ -19,11 +20,14 @@ namespace sonomesh::daemon::internal {
 enum class ShadowSearch { Whole, NearLast, None };
 
 /// §0: what the balloon sees and its pre-filter (docs/stopping.md), into `buffers.smoothed`.
-/// Returns the probe's no-data mask for a dark target (in `buffers`), else an empty one.
+/// Returns the probe's no-data mask for a dark target (in `buffers`), else an empty one. With
+/// `region` (a tracked volume: the index box, both ends in, that its readers look in) only that
+/// box of `buffers.smoothed` is made; the rest holds what an earlier volume left.
 const std::vector<std::uint8_t>& smooth_stage(const volume::Volume& input, const Vec3f& seed_mm,
                                               const PipelineConfig& config,
                                               PipelineBuffers& buffers, PipelineResult& result,
-                                              ShadowSearch search = ShadowSearch::Whole);
+                                              ShadowSearch search = ShadowSearch::Whole,
+                                              const IndexBox* region = nullptr);
 
 /// The same volume smoothed again at `sigma_mm` (the coarse retry, the fine fit), after
 /// smooth_stage gave `first`: the image it left in `buffers` (polarity, no-data fill, lifted

@@ -20,6 +20,10 @@ namespace {
 // vertex by one at most), at most kMostFits times.
 constexpr float kSettledVox = 0.25f;
 constexpr int kMostFits = 3;
+// How far beyond the previous surface tracking reads the smoothed image: its fits move it by up
+// to kMostFits voxels, the wall and open-patch tests look 5 voxels beyond the moved surface, a
+// trilinear sample one more; the rest is slack for the remade surface's fit.
+constexpr int kTrackedReachVox = 12;
 // The surface's inside by ray parity (its labels) may differ from the volume it encloses by this
 // share: more and it crosses itself (a fit pushed one sheet through another), which the signed
 // volume hides and the labels do not; it is then reconstructed from its own samples before it is
@@ -246,6 +250,19 @@ std::string track_surface(const volume::Volume& input, const Vec3f& seed_mm,
   if (!tracked.quality_ok) return "suspect: " + tracked.quality_reasons.front();
   result = std::move(tracked);
   return "";
+}
+
+IndexBox tracked_region(const volume::Volume& input, const PipelineResult& previous) {
+  IndexBox box{input.dims(), Vec3i::Constant(-1)};
+  for (const Vec3f& p : previous.mesh.vertices) {
+    const Vec3f x = input.mm_to_index(p);
+    box.lo = box.lo.cwiseMin(x.array().floor().cast<int>().matrix());
+    box.hi = box.hi.cwiseMax(x.array().ceil().cast<int>().matrix());
+  }
+  // (Reach in voxels of the finest axis, as the readers count it, on each axis's own spacing.)
+  const Vec3f reach_mm = Vec3f::Constant(kTrackedReachVox * input.spacing_mm().minCoeff());
+  const Vec3i reach = reach_mm.cwiseQuotient(input.spacing_mm()).array().ceil().cast<int>();
+  return {(box.lo - reach).cwiseMax(0), (box.hi + reach).cwiseMin(input.dims() - Vec3i::Ones())};
 }
 
 bool remake_tracked(const volume::Volume& input, const volume::Volume& smoothed,

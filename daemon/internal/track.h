@@ -5,6 +5,7 @@
 
 #include <string>
 
+#include "daemon/internal/bright_mask.h"
 #include "daemon/internal/opinions.h"
 #include "daemon/pipeline.h"
 
@@ -23,6 +24,10 @@ std::string track_surface(const volume::Volume& input, const Vec3f& seed_mm,
                           const PipelineConfig& config, const PipelineBuffers& buffers,
                           const PipelineResult& previous, const Judge& judge,
                           PipelineResult& result);
+
+/// The index box (both ends in) that tracking `previous`'s surface reads of the smoothed image:
+/// the surface's, grown by how far its fits move it and its tests look beyond it.
+IndexBox tracked_region(const volume::Volume& input, const PipelineResult& previous);
 
 /// Remakes a tracked `result`'s surface as track_surface remakes one that crossed itself: its
 /// samples through Kazhdan's reconstruction, then the wall fit on `smoothed` (its volume's). The
