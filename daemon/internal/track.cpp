@@ -291,7 +291,12 @@ void measure_tracking_base(const volume::Volume& input, const PipelineBuffers& b
 
 std::string unfit_anchor(const PipelineResult& fresh, int tracked_genus) {
   if (!fresh.ok) return "not made: " + fresh.error;
-  if (!fresh.quality_ok) return "suspect";
+  if (!fresh.quality_ok) {
+    std::string why = "suspect";
+    for (std::size_t i = 0; i < fresh.quality_reasons.size(); ++i)
+      why += (i == 0 ? " (" : ", ") + fresh.quality_reasons[i];
+    return fresh.quality_reasons.empty() ? why : why + ")";
+  }
   // (The warm start keeps neither.)
   if (fresh.mesh.vertices.empty() || fresh.balloon.vertices.empty()) return "without a surface";
   if (fresh.topology.genus == tracked_genus) return {};

@@ -45,10 +45,10 @@ void measure_tracking_base(const volume::Volume& input, const PipelineBuffers& b
                            PipelineResult& result);
 
 /// Why a chain's `fresh` result (the balloon's, segmenting a tracked volume once more) may not
-/// anchor the chain from there on (empty: it may): it failed, is suspect or has no surface, or
-/// its genus is not `tracked_genus`, the chain's. Of two genera one is wrong, and a cold start on
-/// the next volume says which (the 128³ echo lv's refresh once went round the near field's
-/// clutter at the apex, genus 1; tracked on, three cold starts followed).
+/// anchor the chain from there on (empty: it may): it failed, is suspect (its reasons said) or
+/// has no surface, or its genus is not `tracked_genus`, the chain's. Of two genera one is wrong,
+/// and a cold start on the next volume says which (the 128³ echo lv's refresh once went round the
+/// near field's clutter at the apex, genus 1; tracked on, three cold starts followed).
 std::string unfit_anchor(const PipelineResult& fresh, int tracked_genus);
 
 }  // namespace sonomesh::daemon::internal

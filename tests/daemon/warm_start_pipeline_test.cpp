@@ -301,6 +301,8 @@ TEST(WarmStartPipeline, ARefreshOfAnotherGenusDoesNotAnchorTheChain) {
   PipelineResult suspect = r;
   suspect.quality_ok = false;
   EXPECT_EQ(internal::unfit_anchor(suspect, 1), "suspect");
+  suspect.quality_reasons = {"iteration limit", "low contrast"};
+  EXPECT_EQ(internal::unfit_anchor(suspect, 1), "suspect (iteration limit, low contrast)");
   PipelineResult failed;
   failed.error = "the balloon leaked";
   EXPECT_EQ(internal::unfit_anchor(failed, 1), "not made: the balloon leaked");
