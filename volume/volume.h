@@ -190,8 +190,9 @@ Volume smooth_gaussian(const Volume& input, float sigma_mm);
 void smooth_gaussian(const Volume& input, float sigma_mm, Volume& out);
 /// Same, but only the voxels of the index box [lo, hi) (clamped to the grid) are written, each
 /// as the whole volume's smoothing gives it (the filter reads the input beyond the box); the rest
-/// of `out` keeps what it held. For a reader that looks only near a known place (a tracked
-/// surface): at 128³ a box round a target costs a fraction of the whole.
+/// of `out` keeps what it held (sigma_mm <= 0: the whole volume is converted). For a reader that
+/// looks only near a known place (a tracked surface): a box round a target costs a fraction of
+/// the whole.
 void smooth_gaussian(const Volume& input, float sigma_mm, const Vec3i& lo, const Vec3i& hi,
                      Volume& out);
 /// How many voxels along each axis smooth_gaussian reads beyond a voxel of `like`'s grid.
