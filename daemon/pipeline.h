@@ -69,6 +69,10 @@ struct PipelineConfig {
   /// the verdict calls ok, else the one with the larger wall support. 0 = off; not tried when
   /// balloon.level_stop_fraction is already set.
   float second_opinion_level_stop = 0.5f;
+  /// A cold start in a probe's sector (a dark target whose no-data region has an apex) runs the
+  /// level stop first and Ψ_cost as the second opinion: in echo the blood pool's speckle stops
+  /// Ψ_cost short (docs/stopping.md departure 9).
+  bool level_stop_first_in_sector = true;
   /// The coarse retry (docs/stopping.md departure 12): a result that stalled on the texture
   /// around the seed with both stop rules, or whose contrast the verdict calls low, is segmented
   /// again on the volume smoothed at this many speckle grains (clamped to 2-3 voxels); such a

@@ -178,10 +178,14 @@ std::string segment_opinions(const volume::Volume& input, const Vec3f& seed_mm,
   const PipelineResult smoothed_only = result;
   const bool switchable =
       config.second_opinion_level_stop > 0.0f && !(config.balloon.level_stop_fraction > 0.0f);
-  // A cold start after a chain of the level stop's runs it first too: Ψ_cost first stalled on the
-  // speckle at contrast 0.5, and the level stop then ran as the second opinion.
-  const bool level_first = switchable && ((warm && warm->level_stop) ||
-                                          (known_target && known_target->stop_rule == "level"));
+  // A warm start runs its previous result's rule. A cold start after a chain of the level stop's
+  // runs it first too: Ψ_cost first stalled on the speckle at contrast 0.5, and the level stop
+  // then ran as the second opinion. Without such a history, so does one in a probe's sector.
+  const bool sector_first = !warm && !known_target && config.level_stop_first_in_sector &&
+                            buffers.no_data.apex_mm && result.target == TargetPolarity::Dark;
+  const bool level_first = switchable && (warm           ? warm->level_stop
+                                          : known_target ? known_target->stop_rule == "level"
+                                                         : sector_first);
   const PipelineConfig first_config = with_level_stop(config, level_first);
   std::string error = balloon_step(seed_mm, first_config, buffers, warm, stop, result);
   // A cold balloon the verdict calls suspect whatever its surface has that surface made only if
@@ -217,7 +221,12 @@ std::string segment_opinions(const volume::Volume& input, const Vec3f& seed_mm,
   const bool checked = !config.smooth_sigma_mm && !known_target;
   if (later) {
     if (other.ok && other.quality_ok) {
-      if (checked)
+      // A level stop the sector put first that leaked says nothing against an ok Ψ_cost result,
+      // as its leak says nothing when it is asked second (leaves_doubt): a real ventricle's base
+      // opens onto the atrium, where the level stop leaks.
+      const bool said_nothing =
+          sector_first && (result.balloon_stats.leaked || result.balloon_stats.leak_seals > 0);
+      if (checked && !said_nothing)
         confirm_in_place(input, buffers, config.balloon.threads, judge, other_error, other);
       judged = true;
       result = std::move(other);
@@ -233,6 +242,10 @@ std::string segment_opinions(const volume::Volume& input, const Vec3f& seed_mm,
     result.unconfirmed = true;
     judge(result, error);
   }
+  // The level stop's ok result that the sector put first is what Ψ_cost first would have taken
+  // in place of its suspect one: it is confirmed as that would be (a tube's stall).
+  if (sector_first && checked && result.ok && result.quality_ok && !(other.ok && other.quality_ok))
+    confirm_in_place(input, buffers, config.balloon.threads, judge, error, result);
   if (other.ok && other.quality_ok && result.quality_ok)
     open_widely(buffers, config.balloon.threads, other);
   else if (other.ok && other.quality_ok && checked)

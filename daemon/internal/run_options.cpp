@@ -216,6 +216,9 @@ std::vector<OptionSpec> pipeline_options() {
   o.push_back(num("pipeline", "second_opinion_level_stop", "", closed(0, 0.99),
                   "level stop of the second try on a suspect result; 0: none",
                   REF(pipeline.second_opinion_level_stop)));
+  o.push_back(flag("pipeline", "level_stop_first_in_sector",
+                   "a cold start in a probe's sector tries the level stop first",
+                   REF(pipeline.level_stop_first_in_sector)));
   o.push_back(num("pipeline", "coarse_retry_grains", "grains", closed(0, 10),
                   "pre-filter of the retry when both rules stalled; 0: none",
                   REF(pipeline.coarse_retry_grains)));

@@ -129,12 +129,14 @@ TEST(EchoPipeline, SurfaceStoppedOnSpeckleIsSuspect) {
             on.quality_reasons.end());
 }
 
-// The default pipeline takes the second opinion where the paper's stop alone was suspect (the
-// sphere above) and keeps the first result where it was ok (the simple simulator's sphere), at
-// no extra cost there.
+// Ψ_cost first (as outside a probe's sector), the pipeline takes the second opinion where the
+// paper's stop alone was suspect (the sphere above) and keeps the first result where it was ok
+// (the simple simulator's sphere), at no extra cost there.
 TEST(EchoPipeline, SecondOpinionReplacesASuspectResultOnly) {
   const sim::Phantom echo = echo_phantom("sphere", 0.5f);
-  const PipelineResult r = run_pipeline(echo.image, echo.seed_mm, PipelineConfig{});
+  PipelineConfig cost_first;
+  cost_first.level_stop_first_in_sector = false;
+  const PipelineResult r = run_pipeline(echo.image, echo.seed_mm, cost_first);
   ASSERT_TRUE(r.ok && r.labels) << r.error;
   EXPECT_TRUE(r.second_opinion);
   EXPECT_EQ(r.stop_rule, "level");
@@ -148,6 +150,21 @@ TEST(EchoPipeline, SecondOpinionReplacesASuspectResultOnly) {
   EXPECT_EQ(plain.stop_rule, "cost");
 }
 
+// In a probe's sector a cold start runs the level stop first: the same echo sphere needs one
+// opinion, not two, for a result as good. The simple simulator has no sector: Ψ_cost first.
+TEST(EchoPipeline, InAProbesSectorTheLevelStopGoesFirst) {
+  const sim::Phantom echo = echo_phantom("sphere", 0.5f);
+  const PipelineResult r = run_pipeline(echo.image, echo.seed_mm, PipelineConfig{});
+  ASSERT_TRUE(r.ok && r.labels) << r.error;
+  EXPECT_TRUE(r.quality_ok);
+  EXPECT_EQ(r.stop_rule, "level");
+  EXPECT_FALSE(r.second_opinion);
+  EXPECT_EQ(r.topology.genus, 0);
+  EXPECT_GE(internal::dice(*r.labels, echo.truth), 0.9);
+  const sim::Phantom simple = sim::make_phantom({.phantom = "sphere", .size_vox = 64});
+  EXPECT_EQ(run_pipeline(simple.image, simple.seed_mm, PipelineConfig{}).stop_rule, "cost");
+}
+
 // A balloon stalled in a torus's tube at 64³ (the paper's stop alone: genus 0, Dice about 0.4,
 // yet every test of the verdict passed) leaves caps that look down the tube: the open patch asks
 // for the second opinion, whose surface lies on the wall. The simple simulator's cyst-needle
@@ -158,7 +175,9 @@ TEST(EchoPipeline, OpenPatchAsksForTheSecondOpinion) {
   int genus = -1;
   const double alone = pipeline_dice(torus, 0.0f, genus);
   EXPECT_EQ(genus, 0) << "the paper's stop alone found the hole; Dice " << alone;
-  const PipelineResult r = run_pipeline(torus.image, torus.seed_mm, PipelineConfig{});
+  PipelineConfig cost_first;  // (Ψ_cost first, as outside a sector)
+  cost_first.level_stop_first_in_sector = false;
+  const PipelineResult r = run_pipeline(torus.image, torus.seed_mm, cost_first);
   ASSERT_TRUE(r.ok && r.labels) << r.error;
   EXPECT_TRUE(r.second_opinion);
   EXPECT_EQ(r.topology.genus, 1);
