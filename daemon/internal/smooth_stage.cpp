@@ -12,14 +12,15 @@ namespace {
 // echo reads 2.1. A correlation longer than 3 voxels is structure filling the measured cube, not
 // a grain: one voxel too. docs/stopping.md has the measurements.
 constexpr float kMaxSpeckleGrainMm = 3.0f;
+constexpr float kMinGrainVox = 1.75f, kMaxGrainVox = 3.0f;
 
 float pre_filter_sigma_mm(const volume::Volume& input, float grain_mm) {
   const float vox_mm = input.spacing_mm().minCoeff();
   const float grain_vox = grain_mm / vox_mm;
   // (Above 3 mm it is not a probe's speckle either, whose grain is its resolution cell, ~0.3-1.5
   // mm: the 4.8× downsampled Philips volume reads 6.6 mm, and smoothing at that leaked.)
-  return grain_vox >= 1.75f && grain_vox <= 3.0f && grain_mm <= kMaxSpeckleGrainMm ? grain_mm
-                                                                                   : vox_mm;
+  const bool grain = grain_vox >= kMinGrainVox && grain_vox <= kMaxGrainVox;
+  return grain && grain_mm <= kMaxSpeckleGrainMm ? grain_mm : vox_mm;
 }
 
 // The cube the grain is measured in (volume::speckle_grain_mm's default), how far round a bright
@@ -81,10 +82,11 @@ float grain_without_bright(const volume::Volume& input, const Vec3f& seed_mm, fl
 }
 
 // What smoothing `region` reads at the widest pre-filter smooth_stage may choose: the configured
-// one, else 3 voxels of the finest axis (pre_filter_sigma_mm).
+// one, else the widest grain pre_filter_sigma_mm takes.
 IndexBox read_by_smoothing(const volume::Volume& input, const PipelineConfig& config,
                            const IndexBox& region) {
-  const float widest_mm = config.smooth_sigma_mm.value_or(3.0f * input.spacing_mm().minCoeff());
+  const float widest_mm =
+      config.smooth_sigma_mm.value_or(kMaxGrainVox * input.spacing_mm().minCoeff());
   const Vec3i reach = volume::smoothing_reach_vox(input, widest_mm);
   return {region.lo - reach, region.hi + reach};
 }

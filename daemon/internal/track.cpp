@@ -253,16 +253,14 @@ std::string track_surface(const volume::Volume& input, const Vec3f& seed_mm,
 }
 
 IndexBox tracked_region(const volume::Volume& input, const PipelineResult& previous) {
-  IndexBox box{input.dims(), Vec3i::Constant(-1)};
-  for (const Vec3f& p : previous.mesh.vertices) {
-    const Vec3f x = input.mm_to_index(p);
-    box.lo = box.lo.cwiseMin(x.array().floor().cast<int>().matrix());
-    box.hi = box.hi.cwiseMax(x.array().ceil().cast<int>().matrix());
-  }
+  if (previous.mesh.vertices.empty()) return {input.dims(), Vec3i::Constant(-1)};  // (none)
+  const mesh::Box box = mesh::bounding_box(previous.mesh);
+  const Vec3i lo = input.mm_to_index(box.lo_mm).array().floor().cast<int>();
+  const Vec3i hi = input.mm_to_index(box.hi_mm).array().ceil().cast<int>();
   // (Reach in voxels of the finest axis, as the readers count it, on each axis's own spacing.)
   const Vec3f reach_mm = Vec3f::Constant(kTrackedReachVox * input.spacing_mm().minCoeff());
   const Vec3i reach = reach_mm.cwiseQuotient(input.spacing_mm()).array().ceil().cast<int>();
-  return {(box.lo - reach).cwiseMax(0), (box.hi + reach).cwiseMin(input.dims() - Vec3i::Ones())};
+  return {(lo - reach).cwiseMax(0), (hi + reach).cwiseMin(input.dims() - Vec3i::Ones())};
 }
 
 bool remake_tracked(const volume::Volume& input, const volume::Volume& smoothed,
