@@ -2,13 +2,11 @@
 // reused buffers (as the daemon's worker runs it): per volume the reconstruction grid, the FFTW
 // plans made for it, the reconstruct stage's time, genus and Dice against the truth.
 //   breathing_bench [--phantom cyst-needle] [--size 128] [--spacing 0.4] [--volumes 40]
-//                   [--rate 10] [--warm [--track [--chain 10] [--no-remake]]] [--realism echo]
+//                   [--rate 10] [--warm [--track [--chain 10]]] [--realism echo]
 //                   [--contrast C] [--quiet]
 // --warm: each volume's balloon starts inside the previous one's (daemon::WarmStart, 3 voxels in,
 // as the daemon's worker with a still target) and the seed is the previous deepest point, as the
-// daemon's worker runs it (issue 17). --track: the previous surface is tracked where it is safe,
-// and each tracked surface is remade from its own samples before the next volume tracks from it,
-// as the worker does after publishing it (--no-remake: fits alone along the chain).
+// daemon's worker runs it (issue 17). --track: the previous surface is tracked where it is safe.
 // A breathing target should land on a handful of grid sizes, so plans stop being made after the
 // first few volumes (issue 17).
 #include <CLI/CLI.hpp>
@@ -21,7 +19,6 @@
 #include <vector>
 
 #include "daemon/internal/metrics.h"
-#include "daemon/internal/track.h"
 #include "daemon/pipeline.h"
 #include "reconstruct/internal/fft_plans.h"
 #include "sim/sim.h"
@@ -36,7 +33,7 @@ struct Args {
   float spacing_mm = 0.4f, rate_hz = 10.0f;
   float contrast = -1.0f;          // < 0: the phantom's own
   std::string realism = "simple";  // echo: sim::with_echo_realism
-  bool quiet = false, warm_start = false, track = false, no_remake = false;
+  bool quiet = false, warm_start = false, track = false;
   int chain = daemon::PipelineConfig{}.track_max_chain;
 };
 
@@ -125,16 +122,6 @@ sim::PhantomSpec spec_at(const Args& a, float time_s) {
   return spec;
 }
 
-// The tracked `r` remade from its samples as the anchor `warm` tracks from (the worker's
-// remake_anchor); where that fails, `r` as it is.
-void remake(const volume::Volume& image, const volume::Vec3f& seed_mm,
-            const daemon::PipelineResult& r, const daemon::PipelineBuffers& buffers,
-            const daemon::PipelineConfig& config, daemon::WarmStart& warm) {
-  daemon::PipelineResult mended = r;
-  if (daemon::internal::remake_tracked(image, buffers.smoothed, seed_mm, config, mended))
-    warm.previous = std::make_shared<const daemon::PipelineResult>(std::move(mended));
-}
-
 // The stream, volume by volume, as the daemon's worker runs it: buffers reused and, with --warm,
 // the previous balloon (3 voxels in, its genus checked) and deepest point carried forward.
 Tally run_stream(const Args& a) {
@@ -155,8 +142,6 @@ Tally run_stream(const Args& a) {
     if (a.warm_start && r.ok && r.quality_ok) {
       warm = daemon::warm_start_from(r, 3.0f * a.spacing_mm);
       if (!a.track) warm->previous.reset();
-      if (a.track && !a.no_remake && r.tracking.chain > 0)
-        remake(p.image, seed_mm, r, buffers, config, *warm);
       tracked_mm = r.deepest_interior_mm;
     }
     t.warm_count += r.warm_start;
@@ -192,8 +177,6 @@ int main(int argc, char** argv) {
   app.add_flag("--track", a.track, "with --warm: track the previous surface where it is safe");
   app.add_option("--chain", a.chain, "with --track: volumes in a row tracked at most")
       ->check(CLI::Range(0, 1000));
-  app.add_flag("--no-remake", a.no_remake,
-               "with --track: no tracked surface remade from its samples, fits alone");
   CLI11_PARSE(app, argc, argv);
   if (!a.quiet)
     std::printf("%4s %-12s %7s %5s %9s %8s %5s %6s %7s %10s\n", "vol", "grid", "cell_mm", "plans",

@@ -21,8 +21,13 @@
 
 namespace sonomesh::daemon {
 
+using volume::Mat3f;
 using volume::Vec3f;
 using volume::Vec3i;
+
+namespace internal {
+struct TrackingAnchor;
+}
 
 /// Polarity of the target (DESIGN.md "Targets, polarity and the quality verdict"): darker than
 /// its surroundings (cyst, cardiac cavity), brighter (hyperechoic lesion, CT organ), or decided
@@ -194,6 +199,12 @@ struct PipelineResult {
     long bright_line_base = 0;  // deep bright voxels on a line inside the chain's first result
     std::string refused;
     bool balloon_stale = false;
+    /// The chain's anchor (its first result's surface, internal/track_anchor.h) and the affine
+    /// map from it to this volume's wall: p -> linear (p - centre) + centre + shift, the centre
+    /// the anchor's centroid.
+    std::shared_ptr<const internal::TrackingAnchor> anchor;
+    Mat3f anchor_linear = Mat3f::Identity();
+    Vec3f anchor_shift_mm = Vec3f::Zero();
   } tracking;
   /// The balloon's stop rule behind this result: "cost" (Ψ_cost, the paper's) or "level" (the
   /// level stop, as configured or as the second opinion); and whether the second opinion ran.

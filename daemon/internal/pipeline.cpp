@@ -430,7 +430,7 @@ PipelineResult run_volume(const volume::Volume& input, const Vec3f& seed_mm,
   if (!judged) judge(result, "");
   judged = true;
   if (config.track_max_chain > 0 && result.quality_ok)
-    internal::measure_tracking_base(input, buffers, config.balloon.threads, result);
+    internal::measure_tracking_base(input, buffers, config, result);
   return finish("");
 }
 

@@ -11,34 +11,30 @@
 #include "daemon/internal/clock.h"
 #include "daemon/internal/stages.h"
 #include "daemon/internal/target_image.h"
+#include "daemon/internal/track_anchor.h"
 
 namespace sonomesh::daemon::internal {
 namespace {
 
-// The pipeline's wall fit, repeated while it still moves the surface by this much on average (a
-// breath moves a wall up to about a voxel between two volumes at 10 volumes/s; one fit moves a
-// vertex by one at most), at most kMostFits times.
-constexpr float kSettledVox = 0.25f;
-constexpr int kMostFits = 3;
-// How far beyond the previous surface tracking reads the smoothed image: its fits move it by up
-// to kMostFits voxels, the wall and open-patch tests look 5 voxels beyond the moved surface, a
-// trilinear sample one more; the rest is slack for the remade surface's fit.
+// How far beyond the previous surface tracking reads the smoothed image: the anchor where the
+// last map put it lies within a voxel or so of that surface, its fits move it by up to three, the
+// wall and open-patch tests look 5 voxels beyond the moved surface, a trilinear sample one more;
+// the rest is slack for a remade surface's fit.
 constexpr int kTrackedReachVox = 12;
 // The surface's inside by ray parity (its labels) may differ from the volume it encloses by this
 // share: more and it crosses itself (a fit pushed one sheet through another), which the signed
 // volume hides and the labels do not; it is then reconstructed from its own samples before it is
-// published. A surface remade after publishing (remake_tracked) is kept within the second share.
-// Along a chain of fits alone the share grew by 0.1-0.5 % a volume, at times 1.2-1.8 % at once.
+// published. Along a chain of fits alone the share grew by 0.1-0.5 % a volume, at times 1.2-1.8 %
+// at once.
 constexpr double kMostInsideMismatch = 0.0075;
-constexpr double kRemadeInsideMismatch = 0.003;
 // How much larger the open patch may grow over the chain's first result: a withdrawn needle's
 // tunnel adds 6.6-7.5 % of a cyst's area; a breathing 128³ cyst-needle's patch by the needle
 // varies by up to 3 % (0.6-3.6 %).
 constexpr float kMostOpenGrowth = 0.03f;
-// How much it may grow from the last volume's: a needle withdrawn half-way adds 3.0 % at once
-// (echo 96³), within the limit above; breathing moves it by up to 1.2 % from one volume to the
-// next (echo 96³ at 10 volumes/s).
-constexpr float kMostOpenJump = 0.02f;
+// How much it may grow from the last volume's: a needle withdrawn half-way adds 1.8 % at once
+// (a 48³ cyst), within the limit above; breathing moves it by up to 0.7 % from one volume to the
+// next (simple 96³ at 10 volumes/s; echo at most 0.2 %: each volume fits the chain's anchor).
+constexpr float kMostOpenJump = 0.01f;
 // A bright set with this share of the inside's voxels deep inside the tracked surface is a needle
 // that came in: half of one pushed on from a dent has 0.6-0.9 % of a 96³ cyst's (simple, echo),
 // a whole one more; echo speckle at most 0.14 % (48 voxels, a 40-volume 96³ stream).
@@ -53,19 +49,13 @@ constexpr float kLeastNeedleMm = 7.0f;
 // then reconstructed from its own samples.
 constexpr double kMostFoldedShare = 0.02;
 
-Vec3f centroid_mm(const segment::Mesh& m) {
-  Vec3f sum = Vec3f::Zero();
-  for (const Vec3f& p : m.vertices) sum += p;
-  return m.vertices.empty() ? sum : Vec3f(sum / static_cast<float>(m.vertices.size()));
-}
-
 // The previous result's deepest point moved as the surface's centroid moved, on the nearest
 // voxel centre as the deepest point of χ is: breathing moves a target, but hardly changes it.
 std::optional<Vec3f> moved_with(const PipelineResult& previous, const segment::Mesh& surface,
                                 const volume::Volume& input) {
   if (!previous.deepest_interior_mm) return std::nullopt;
-  const Vec3f moved_mm =
-      *previous.deepest_interior_mm + centroid_mm(surface) - centroid_mm(previous.mesh);
+  const Vec3f moved_mm = *previous.deepest_interior_mm + vertex_centroid_mm(surface) -
+                         vertex_centroid_mm(previous.mesh);
   return input.index_to_mm(input.mm_to_index(moved_mm).array().round().matrix());
 }
 
@@ -73,23 +63,6 @@ std::string percent(float share) {
   char text[32];
   std::snprintf(text, sizeof text, "%.1f %%", 100.0 * share);
   return text;
-}
-
-// `previous`'s surface fitted to this volume's wall (see kSettledVox).
-segment::Mesh follow_wall(const volume::Volume& smoothed, const PipelineResult& previous,
-                          const PipelineConfig& config, int threads) {
-  segment::Mesh fitted = previous.mesh;
-  const double vox_mm = smoothed.spacing_mm().minCoeff();
-  for (int i = 0; i < kMostFits; ++i) {
-    segment::Mesh next = segment::fit_to_wall(smoothed, fitted, previous.balloon_stats,
-                                              config.wall_fit_options, threads);
-    double moved_mm = 0.0;
-    for (std::size_t v = 0; v < next.vertices.size(); ++v)
-      moved_mm += (next.vertices[v] - fitted.vertices[v]).norm();
-    fitted = std::move(next);
-    if (moved_mm < kSettledVox * vox_mm * static_cast<double>(fitted.vertices.size())) break;
-  }
-  return fitted;
 }
 
 // (Labels' volume − enclosed volume) / enclosed volume.
@@ -138,6 +111,14 @@ void take_surface(const volume::Volume& input, const reconstruct::SurfaceResult&
   tracked.labels = reconstruct::rasterize_labels(tracked.mesh, input);
 }
 
+// `result`'s surface as the anchor of the chain from here, its map none.
+void start_chain_at(const volume::Volume& smoothed, const PipelineConfig& config,
+                    PipelineResult& result) {
+  result.tracking.anchor = make_anchor(smoothed, result, config);
+  result.tracking.anchor_linear = Mat3f::Identity();
+  result.tracking.anchor_shift_mm = Vec3f::Zero();
+}
+
 // The labels of `tracked`'s surface, when it is not `folded` and they agree with the volume it
 // encloses (see kMostInsideMismatch); else the surface the fits folded or pushed through itself
 // is remade (`remade`) and checked again. Returns why not, or empty.
@@ -157,6 +138,7 @@ std::string label_consistently(const volume::Volume& input, const volume::Volume
                                                     percent(static_cast<float>(mismatch)) + ")";
   if (!again) return crossed;
   take_surface(input, *again, tracked);
+  start_chain_at(smoothed, config, tracked);  // (its vertices are no longer the anchor's)
   tracked.start_reason = "previous surface, reconstructed";
   mismatch = inside_mismatch(*tracked.labels, tracked.enclosed_volume_ml);
   return std::abs(mismatch) <= kMostInsideMismatch ? "" : crossed + ", reconstructed too";
@@ -207,20 +189,28 @@ std::string track_surface(const volume::Volume& input, const Vec3f& seed_mm,
                           const PipelineResult& previous, const Judge& judge,
                           PipelineResult& result) {
   if (previous.target != result.target) return "the polarity changed";
-  if (!previous.topology.manifold || previous.tracking.open_patch_base < 0.0f)
+  if (!previous.topology.manifold || previous.tracking.open_patch_base < 0.0f ||
+      !previous.tracking.anchor)
     return "the previous result has no base to check against";
   const int threads = config.balloon.threads;
   const auto t = Clock::now();
-  const segment::Mesh fitted = follow_wall(buffers.smoothed, previous, config, threads);
-  const double folded_area = folded_share(previous.mesh, fitted);
+  const segment::Mesh start = mapped_anchor(previous.tracking);
+  segment::Mesh fitted = follow_wall(buffers.smoothed, start, previous.balloon_stats, config);
+  // The open patch is the fit's as it stands: where this volume's wall is gone, as round a needle
+  // withdrawn from its tunnel, the anchor's own fit says nothing, and taking it off there would
+  // narrow the tunnel whose area the patch measures.
+  const segment::BalloonStats& levels = previous.balloon_stats;
+  const float open =
+      open_patch(buffers.smoothed, fitted, levels.seed_level, levels.tissue_level, threads);
+  take_off_own_fit(*previous.tracking.anchor, start, fitted);
+  const double folded_area = folded_share(start, fitted);
   const std::string folded =
       folded_area > kMostFoldedShare ? "folded " + percent(static_cast<float>(folded_area)) : "";
   PipelineResult tracked = carried(previous, result, std::move(fitted));
+  fit_anchor_map(tracked.mesh, input.spacing_mm().minCoeff(), tracked.tracking);
   tracked.timings.reinflate_ms = ms_since(t);
   tracked.deepest_interior_mm = moved_with(previous, tracked.mesh, input);
-  const segment::BalloonStats& levels = tracked.balloon_stats;
-  tracked.open_patch =
-      open_patch(buffers.smoothed, tracked.mesh, levels.seed_level, levels.tissue_level, threads);
+  tracked.open_patch = open;
   if (tracked.open_patch > previous.tracking.open_patch_base + kMostOpenGrowth)
     return "open patch " + percent(tracked.open_patch) + " from " +
            percent(previous.tracking.open_patch_base);
@@ -263,24 +253,14 @@ IndexBox tracked_region(const volume::Volume& input, const PipelineResult& previ
   return {(lo - reach).cwiseMax(0), (hi + reach).cwiseMin(input.dims() - Vec3i::Ones())};
 }
 
-bool remake_tracked(const volume::Volume& input, const volume::Volume& smoothed,
-                    const Vec3f& seed_mm, const PipelineConfig& config, PipelineResult& result) {
-  const std::optional<reconstruct::SurfaceResult> again =
-      remade(input, smoothed, result.mesh, result, seed_mm, config);
-  if (!again) return false;
-  take_surface(input, *again, result);
-  const double mismatch = inside_mismatch(*result.labels, result.enclosed_volume_ml);
-  result.labels.reset();
-  return std::abs(mismatch) <= kRemadeInsideMismatch;
-}
-
-void measure_tracking_base(const volume::Volume& input, const PipelineBuffers& buffers, int threads,
-                           PipelineResult& result) {
+void measure_tracking_base(const volume::Volume& input, const PipelineBuffers& buffers,
+                           const PipelineConfig& config, PipelineResult& result) {
   const segment::BalloonStats& levels = result.balloon_stats;
   if (result.open_patch < 0.0f)
-    result.open_patch =
-        open_patch(buffers.smoothed, result.mesh, levels.seed_level, levels.tissue_level, threads);
+    result.open_patch = open_patch(buffers.smoothed, result.mesh, levels.seed_level,
+                                   levels.tissue_level, config.balloon.threads);
   result.tracking.open_patch_base = result.open_patch;
+  start_chain_at(buffers.smoothed, config, result);
   std::optional<volume::Volume> made;  // (the result's own labels when it has them, not a copy)
   if (!result.labels) made = reconstruct::rasterize_labels(result.mesh, input);
   result.tracking.bright_line_base =

@@ -11,15 +11,16 @@
 
 namespace sonomesh::daemon::internal {
 
-/// Fits `previous`'s surface to the wall in `buffers.smoothed` (the pipeline's wall fit, repeated
-/// until it settles) and checks the result: hardly any of its area folded over, no larger patch
-/// looking into the target's inside than the chain's first result had (a needle withdrawn leaves
-/// its tunnel open) nor one that jumped since the last volume (withdrawn half-way), labels that
-/// agree with the volume it encloses (else it crossed itself, and is reconstructed from its own
-/// samples once), no bright structure deep inside (a needle inserted or pushed on,
-/// bright_inside.h), and an ok verdict. The balloon, its statistics and the topology are carried
-/// over. Returns why tracking was refused, or empty when `result` holds the judged tracked result
-/// (labels included when `config.want_labels`).
+/// Fits the chain's anchor (track_anchor.h), where the last volume's map put it, to the wall in
+/// `buffers.smoothed` (the pipeline's wall fit, repeated until it settles; the anchor's own fit
+/// taken off) and checks the result: hardly any of its area folded over, no larger patch looking
+/// into the target's inside than the chain's first result had (a needle withdrawn leaves its
+/// tunnel open) nor one that jumped since the last volume (withdrawn half-way), labels that agree
+/// with the volume it encloses (else it crossed itself, and is reconstructed from its own samples
+/// once, and anchors the chain from there), no bright structure deep inside (a needle inserted or
+/// pushed on, bright_inside.h), and an ok verdict. The balloon, its statistics and the topology
+/// are carried over; the map is fitted to this volume. Returns why tracking was refused, or empty
+/// when `result` holds the judged tracked result (labels included when `config.want_labels`).
 std::string track_surface(const volume::Volume& input, const Vec3f& seed_mm,
                           const PipelineConfig& config, const PipelineBuffers& buffers,
                           const PipelineResult& previous, const Judge& judge,
@@ -29,20 +30,11 @@ std::string track_surface(const volume::Volume& input, const Vec3f& seed_mm,
 /// the surface's, grown by how far its fits move it and its tests look beyond it.
 IndexBox tracked_region(const volume::Volume& input, const PipelineResult& previous);
 
-/// Remakes a tracked `result`'s surface as track_surface remakes one that crossed itself: its
-/// samples through Kazhdan's reconstruction, then the wall fit on `smoothed` (its volume's). The
-/// daemon does this to every tracked result after publishing it, for the next volume to track
-/// from: each fit follows a few speckle grains, and a chain of fits piles them up where the
-/// reconstruction smooths them away. Returns whether `result` now holds a surface that kept the
-/// genus and the seed and agrees with its labels (else it is not to be used).
-bool remake_tracked(const volume::Volume& input, const volume::Volume& smoothed,
-                    const Vec3f& seed_mm, const PipelineConfig& config, PipelineResult& result);
-
 /// Sets `result.tracking`'s base on a result the balloon made, for the chain it may start: its
-/// open patch (measured when it was not) and the deep bright voxels on a line inside it (labels
-/// made from its surface when it has none).
-void measure_tracking_base(const volume::Volume& input, const PipelineBuffers& buffers, int threads,
-                           PipelineResult& result);
+/// open patch (measured when it was not), the deep bright voxels on a line inside it (labels made
+/// from its surface when it has none), and its surface as the chain's anchor (track_anchor.h).
+void measure_tracking_base(const volume::Volume& input, const PipelineBuffers& buffers,
+                           const PipelineConfig& config, PipelineResult& result);
 
 /// Why a chain's `fresh` result (the balloon's, segmenting a tracked volume once more) may not
 /// anchor the chain from there on (empty: it may): it failed, is suspect (its reasons said) or

@@ -279,34 +279,7 @@ void Worker::process(QueuedVolume item, PipelineBuffers& buffers, int lanes) {
   const std::shared_ptr<const volume::Volume> kept_input = v.input;
   out.line = std::move(line);
   out_.push(std::move(out));
-  if (!refresh_from) return;
-  // (The configured length: this volume's own may have been doubled while another lane was busy,
-  // and a remake in its place let the chain run past its length into a cold start.)
-  if (refresh_from->previous->tracking.chain < refresh_chain(start->chain_length))
-    return remake_anchor(seq, *kept_input, *start, seed_mm, *refresh_from->previous, buffers);
-  refresh_anchor(seq, *kept_input, *start, seed_mm, *refresh_from, buffers);
-}
-
-// Every tracked surface is remade from its own samples (internal::remake_tracked) after it was
-// published, not before: the remaking takes 10-25 ms, and a volume's latency does not wait for
-// it. Its result becomes the anchor the next volumes track from, where no newer result replaced
-// this one meanwhile; one begun before from the unremade anchor is not kept.
-void Worker::remake_anchor(std::uint64_t sequence, const volume::Volume& input, const Start& start,
-                           const Vec3f& seed_mm, const PipelineResult& tracked,
-                           const PipelineBuffers& buffers) {
-  PipelineResult mended = tracked;
-  bool ok = false;
-  try {
-    ok = internal::remake_tracked(input, buffers.smoothed, seed_mm, start.config.pipeline, mended);
-  } catch (const std::exception& e) {
-    spdlog::warn("sequence {}: the tracked surface was not remade: {}", sequence, e.what());
-  }
-  std::lock_guard lock(state_mutex_);
-  refresh_busy_ = false;
-  if (!ok || anchor_ != start.anchor || state_sequence_ != sequence || !previous_) return;
-  ++anchor_;
-  previous_->warm.previous = std::make_shared<const PipelineResult>(std::move(mended));
-  previous_->note = "surface remade from its samples on sequence " + std::to_string(sequence);
+  if (refresh_from) refresh_anchor(seq, *kept_input, *start, seed_mm, *refresh_from, buffers);
 }
 
 // Near the chain's length (refresh_chain) the balloon segments the volume just published once
@@ -346,8 +319,8 @@ void Worker::refresh_anchor(std::uint64_t sequence, const volume::Volume& input,
 
 // A result older than the state's (the other lane's newer volume finished first) is still
 // checked against it for a genus change, but does not set it back, nor does one begun before the
-// anchor was refreshed or remade. Returns the warm start kept when this lane is to refresh the
-// anchor near the chain's length (refresh_anchor) or remake a tracked surface (remake_anchor).
+// anchor was refreshed. Returns the warm start kept when this lane is to refresh the anchor near
+// the chain's length (refresh_anchor).
 std::optional<WarmStart> Worker::end_volume(std::uint64_t sequence, const volume::Volume& input,
                                             const Start& start, PipelineResult& result) {
   std::lock_guard lock(state_mutex_);
@@ -368,7 +341,9 @@ std::optional<WarmStart> Worker::end_volume(std::uint64_t sequence, const volume
   seeds_.on_result(deepest, override_waiting());
   if (start.anchor != anchor_) return std::nullopt;
   keep_for_warm_start(input, result);
-  if (!previous_ || refresh_busy_ || !result.quality_ok || result.tracking.chain == 0)
+  // (The configured length: this volume's own may have been doubled while another lane was busy.)
+  if (!previous_ || refresh_busy_ || !result.quality_ok ||
+      result.tracking.chain < refresh_chain(start.chain_length))
     return std::nullopt;
   refresh_busy_ = true;
   return previous_->warm;

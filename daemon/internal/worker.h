@@ -56,9 +56,6 @@ class Worker {
   std::optional<Start> begin_volume(const volume::Volume& input, int lanes, nlohmann::json& line);
   void refresh_anchor(std::uint64_t sequence, const volume::Volume& input, const Start& start,
                       const Vec3f& seed_mm, const WarmStart& tracked, PipelineBuffers& buffers);
-  void remake_anchor(std::uint64_t sequence, const volume::Volume& input, const Start& start,
-                     const Vec3f& seed_mm, const PipelineResult& tracked,
-                     const PipelineBuffers& buffers);
   // The state the next volumes start from, advanced by a result newer than the one it holds.
   std::optional<WarmStart> end_volume(std::uint64_t sequence, const volume::Volume& input,
                                       const Start& start, PipelineResult& result);
@@ -102,7 +99,7 @@ class Worker {
   int since_refused_ = 1 << 30;    // volumes since the pipeline last refused a warm start
   std::optional<int> last_genus_;  // of the last result with a surface
   bool cold_lane_busy_ = false;    // a lane started cold with nothing warm (claim_cold_start)
-  bool refresh_busy_ = false;      // a lane runs refresh_anchor or remake_anchor
+  bool refresh_busy_ = false;      // a lane runs refresh_anchor
   std::uint64_t anchor_ = 0;  // refreshes and new objects so far: a result begun before is not kept
   std::function<void()> turn_hook_;
 
