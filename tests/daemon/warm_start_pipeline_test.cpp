@@ -116,10 +116,12 @@ TEST(WarmStartPipeline, AgreesWithColdStartOnABreathingCystNeedle) {
   // With it, the balloon met itself behind the needle; its eroded interior keeps the two sheets
   // apart, so the warm starts are used there too (4 of 5 after the first when this was written,
   // all of them tracked).
-  // Warm and cold differ by Dice 0.983-0.992 (not the 0.99; 0.986-0.988 before surface
-  // tracking): the warm results lie as close to the truth or closer (0.978-0.980 against the
-  // cold ones' 0.973-0.981), with the truth's genus on every volume.
-  const Starts starts = agree_with_cold_start(true, 0.975);
+  // Warm and cold differ by Dice 0.9903-0.9927 since each volume fits the chain's anchor (the
+  // issue's 0.99; 0.983-0.992 when the last surface was fitted, 0.986-0.988 before surface
+  // tracking), asserted at 0.985: a few hundredths of a voxel of rounding elsewhere would cross
+  // 0.99. The warm results lie within 0.0015 of the cold ones' distance to the truth, with the
+  // truth's genus on every volume.
+  const Starts starts = agree_with_cold_start(true, 0.985);
   EXPECT_GE(starts.warm, 4);
   EXPECT_GE(starts.tracked, 2);  // (4 of 5 when this was written)
 }
