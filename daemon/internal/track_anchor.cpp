@@ -100,6 +100,7 @@ segment::Mesh follow_wall(const volume::Volume& smoothed, const segment::Mesh& s
 std::shared_ptr<const TrackingAnchor> make_anchor(const volume::Volume& smoothed,
                                                   const PipelineResult& result,
                                                   const PipelineConfig& config) {
+  if (!(result.balloon_stats.tissue_level > result.balloon_stats.seed_level)) return nullptr;
   auto anchor = std::make_shared<TrackingAnchor>();
   anchor->surface = result.mesh;
   anchor->centre_mm = vertex_centroid_mm(result.mesh);

@@ -3,8 +3,8 @@
 /// @brief The surface a tracking chain follows (track.h): the chain's first result's, carried to
 /// each volume by an affine map. Each volume's fit starts from the anchor where the last volume's
 /// map put it, not from the last fitted surface, so the speckle grains one fit follows are not
-/// carried into the next (fitted from the last surface, an echo chain at contrast 0.5 drifted
-/// off the wall, 0.965 → 0.940 Dice over ten volumes).
+/// carried into the next: fitted from the last surface, an echo chain drifted off the wall
+/// (docs/tuning.md, "Surface tracking").
 
 #include <memory>
 #include <vector>
@@ -15,9 +15,8 @@ namespace sonomesh::daemon::internal {
 
 /// A chain's first surface, its vertices' centroid, and how far along its normals the tracking
 /// fit (follow_wall) moves each vertex on the surface's own volume: the fit's bias on the
-/// smoothed image (a wall facing the probe comes out half a voxel or more inside, where the
-/// pipeline's last fit, on the unsmoothed image, put it right), which each tracked volume's fit
-/// takes off again.
+/// smoothed image (a wall facing the probe comes out inside, where the pipeline's last fit, on
+/// the unsmoothed image, put it right), which each tracked volume's fit takes off again.
 struct TrackingAnchor {
   segment::Mesh surface;
   Vec3f centre_mm = Vec3f::Zero();
@@ -32,7 +31,8 @@ Vec3f vertex_centroid_mm(const segment::Mesh& surface);
 segment::Mesh follow_wall(const volume::Volume& smoothed, const segment::Mesh& start,
                           const segment::BalloonStats& levels, const PipelineConfig& config);
 
-/// `result`'s surface as a chain's anchor, its own fit measured on `smoothed` (its volume's).
+/// `result`'s surface as a chain's anchor, its own fit measured on `smoothed` (its volume's);
+/// none where `result` has no seed and tissue levels for the fit.
 std::shared_ptr<const TrackingAnchor> make_anchor(const volume::Volume& smoothed,
                                                   const PipelineResult& result,
                                                   const PipelineConfig& config);
