@@ -199,12 +199,14 @@ struct PipelineResult {
     long bright_line_base = 0;  // deep bright voxels on a line inside the chain's first result
     std::string refused;
     bool balloon_stale = false;
-    /// The chain's anchor (its first result's surface, internal/track_anchor.h) and the affine
-    /// map from it to this volume's wall: p -> linear (p - centre) + centre + shift, the centre
-    /// the anchor's centroid.
+    /// The chain's anchor (its first result's surface, internal/track_anchor.h), the affine map
+    /// from it to this volume's wall, p -> linear (p - centre) + centre + shift with the centre
+    /// the anchor's centroid, and the last volume's map.
     std::shared_ptr<const internal::TrackingAnchor> anchor;
-    Mat3f anchor_linear = Mat3f::Identity();
-    Vec3f anchor_shift_mm = Vec3f::Zero();
+    struct Map {
+      Mat3f linear = Mat3f::Identity();
+      Vec3f shift_mm = Vec3f::Zero();
+    } map, last_map;
   } tracking;
   /// The balloon's stop rule behind this result: "cost" (Ψ_cost, the paper's) or "level" (the
   /// level stop, as configured or as the second opinion); and whether the second opinion ran.

@@ -111,12 +111,11 @@ void take_surface(const volume::Volume& input, const reconstruct::SurfaceResult&
   tracked.labels = reconstruct::rasterize_labels(tracked.mesh, input);
 }
 
-// `result`'s surface as the anchor of the chain from here, its map none.
+// `result`'s surface as the anchor of the chain from here, its maps none.
 void start_chain_at(const volume::Volume& smoothed, const PipelineConfig& config,
                     PipelineResult& result) {
   result.tracking.anchor = make_anchor(smoothed, result, config);
-  result.tracking.anchor_linear = Mat3f::Identity();
-  result.tracking.anchor_shift_mm = Vec3f::Zero();
+  result.tracking.map = result.tracking.last_map = {};
 }
 
 // The labels of `tracked`'s surface, when it is not `folded` and they agree with the volume it
@@ -194,7 +193,7 @@ std::string track_surface(const volume::Volume& input, const Vec3f& seed_mm,
     return "the previous result has no base to check against";
   const int threads = config.balloon.threads;
   const auto t = Clock::now();
-  const segment::Mesh start = mapped_anchor(previous.tracking);
+  const segment::Mesh start = predicted_anchor(previous.tracking);
   segment::Mesh fitted = follow_wall(buffers.smoothed, start, previous.balloon_stats, config);
   // The open patch is the fit's as it stands: where this volume's wall is gone, as round a needle
   // withdrawn from its tunnel, the anchor's own fit says nothing, and taking it off there would

@@ -11,16 +11,17 @@
 
 namespace sonomesh::daemon::internal {
 
-/// Fits the chain's anchor (track_anchor.h), where the last volume's map put it, to the wall in
-/// `buffers.smoothed` (the pipeline's wall fit, repeated until it settles; the anchor's own fit
-/// taken off) and checks the result: hardly any of its area folded over, no larger patch looking
-/// into the target's inside than the chain's first result had (a needle withdrawn leaves its
-/// tunnel open) nor one that jumped since the last volume (withdrawn half-way), labels that agree
-/// with the volume it encloses (else it crossed itself, and is reconstructed from its own samples
-/// once, and anchors the chain from there), no bright structure deep inside (a needle inserted or
-/// pushed on, bright_inside.h), and an ok verdict. The balloon, its statistics and the topology
-/// are carried over; the map is fitted to this volume. Returns why tracking was refused, or empty
-/// when `result` holds the judged tracked result (labels included when `config.want_labels`).
+/// Fits the chain's anchor (track_anchor.h), where the last two volumes' maps predict it, to the
+/// wall in `buffers.smoothed` (the pipeline's wall fit, repeated until it settles; the anchor's
+/// own fit taken off) and checks the result: hardly any of its area folded over, no larger patch
+/// looking into the target's inside than the chain's first result had (a needle withdrawn leaves
+/// its tunnel open) nor one that jumped since the last volume (withdrawn half-way), labels that
+/// agree with the volume it encloses (else it crossed itself, and is reconstructed from its own
+/// samples once, and anchors the chain from there), no bright structure deep inside (a needle
+/// inserted or pushed on, bright_inside.h), and an ok verdict. The balloon, its statistics and
+/// the topology are carried over; the map is fitted to this volume. Returns why tracking was
+/// refused, or empty when `result` holds the judged tracked result (labels included when
+/// `config.want_labels`).
 std::string track_surface(const volume::Volume& input, const Vec3f& seed_mm,
                           const PipelineConfig& config, const PipelineBuffers& buffers,
                           const PipelineResult& previous, const Judge& judge,

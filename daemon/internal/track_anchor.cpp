@@ -26,20 +26,30 @@ using Vec12 = Eigen::Matrix<double, 12, 1>;
 using Mat12 = Eigen::Matrix<double, 12, 12>;
 
 // The map as 12 numbers: linear − identity row by row, then the shift.
-Vec12 map_vector(const PipelineResult::Tracking& tracking) {
+Vec12 map_vector(const PipelineResult::Tracking::Map& map) {
   Vec12 x;
-  const Mat3f change = tracking.anchor_linear - Mat3f::Identity();
+  const Mat3f change = map.linear - Mat3f::Identity();
   for (int j = 0; j < 3; ++j)
     for (int k = 0; k < 3; ++k) x[3 * j + k] = change(j, k);
-  x.tail<3>() = tracking.anchor_shift_mm.cast<double>();
+  x.tail<3>() = map.shift_mm.cast<double>();
   return x;
 }
 
-void set_map(const Vec12& x, PipelineResult::Tracking& tracking) {
+PipelineResult::Tracking::Map as_map(const Vec12& x) {
+  PipelineResult::Tracking::Map map;
   for (int j = 0; j < 3; ++j)
     for (int k = 0; k < 3; ++k)
-      tracking.anchor_linear(j, k) = static_cast<float>(x[3 * j + k] + (j == k ? 1.0 : 0.0));
-  tracking.anchor_shift_mm = x.tail<3>().cast<float>();
+      map.linear(j, k) = static_cast<float>(x[3 * j + k] + (j == k ? 1.0 : 0.0));
+  map.shift_mm = x.tail<3>().cast<float>();
+  return map;
+}
+
+// The anchor's vertices where `map` puts them.
+segment::Mesh mapped(const TrackingAnchor& anchor, const PipelineResult::Tracking::Map& map) {
+  segment::Mesh m = anchor.surface;
+  for (Vec3f& p : m.vertices)
+    p = map.linear * (p - anchor.centre_mm) + anchor.centre_mm + map.shift_mm;
+  return m;
 }
 
 // One least-squares solve of the map: each vertex's distance along its fitted normal from where
@@ -113,12 +123,14 @@ std::shared_ptr<const TrackingAnchor> make_anchor(const volume::Volume& smoothed
 }
 
 segment::Mesh mapped_anchor(const PipelineResult::Tracking& tracking) {
-  const TrackingAnchor& anchor = *tracking.anchor;
-  segment::Mesh m = anchor.surface;
-  for (Vec3f& p : m.vertices)
-    p = tracking.anchor_linear * (p - anchor.centre_mm) + anchor.centre_mm +
-        tracking.anchor_shift_mm;
-  return m;
+  return mapped(*tracking.anchor, tracking.map);
+}
+
+segment::Mesh predicted_anchor(const PipelineResult::Tracking& tracking) {
+  const PipelineResult::Tracking::Map& now = tracking.map;
+  const PipelineResult::Tracking::Map& last = tracking.last_map;
+  return mapped(*tracking.anchor, {.linear = 2.0f * now.linear - last.linear,
+                                   .shift_mm = 2.0f * now.shift_mm - last.shift_mm});
 }
 
 void take_off_own_fit(const TrackingAnchor& anchor, const segment::Mesh& start,
@@ -130,10 +142,11 @@ void take_off_own_fit(const TrackingAnchor& anchor, const segment::Mesh& start,
 
 void fit_anchor_map(const segment::Mesh& fitted, float vox_mm, PipelineResult::Tracking& tracking) {
   const std::vector<Vec3f> normal = mesh::vertex_normals(fitted);
-  const Vec12 held = map_vector(tracking);
+  const Vec12 held = map_vector(tracking.map);
   const Vec12 first = solve_map(*tracking.anchor, fitted, normal, held, held, 0.0);
-  set_map(solve_map(*tracking.anchor, fitted, normal, first, held, kMapOutlierVox * vox_mm),
-          tracking);
+  tracking.last_map = tracking.map;
+  tracking.map =
+      as_map(solve_map(*tracking.anchor, fitted, normal, first, held, kMapOutlierVox * vox_mm));
 }
 
 }  // namespace sonomesh::daemon::internal

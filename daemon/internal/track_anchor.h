@@ -40,13 +40,19 @@ std::shared_ptr<const TrackingAnchor> make_anchor(const volume::Volume& smoothed
 /// The tracking's anchor where its map puts it (same vertices and triangles).
 segment::Mesh mapped_anchor(const PipelineResult::Tracking& tracking);
 
+/// The anchor where the next volume's map is expected: the map moved on from this volume's as
+/// it moved from the last one's. A breath moves the wall smoothly, so the next volume's fits
+/// start nearer their end, and settle in fewer rounds.
+segment::Mesh predicted_anchor(const PipelineResult::Tracking& tracking);
+
 /// `fitted` (`start`, the mapped anchor, fitted to this volume's wall) without the anchor's own
 /// fit, each vertex moved back along `start`'s normal.
 void take_off_own_fit(const TrackingAnchor& anchor, const segment::Mesh& start,
                       segment::Mesh& fitted);
 
 /// Sets `tracking`'s map to the affine one that takes its anchor to `fitted` (the anchor's
-/// vertices, moved), in the least squares of the distances along `fitted`'s normals.
+/// vertices, moved), in the least squares of the distances along `fitted`'s normals; the map it
+/// had becomes the last one.
 void fit_anchor_map(const segment::Mesh& fitted, float vox_mm, PipelineResult::Tracking& tracking);
 
 }  // namespace sonomesh::daemon::internal

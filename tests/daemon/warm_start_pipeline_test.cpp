@@ -116,10 +116,10 @@ TEST(WarmStartPipeline, AgreesWithColdStartOnABreathingCystNeedle) {
   // With it, the balloon met itself behind the needle; its eroded interior keeps the two sheets
   // apart, so the warm starts are used there too (4 of 5 after the first when this was written,
   // all of them tracked).
-  // Warm and cold differ by Dice 0.9903-0.9927 since each volume fits the chain's anchor (the
+  // Warm and cold differ by Dice 0.991-0.993 since each volume fits the chain's anchor (the
   // issue's 0.99; 0.983-0.992 when the last surface was fitted, 0.986-0.988 before surface
   // tracking), asserted at 0.985: a few hundredths of a voxel of rounding elsewhere would cross
-  // 0.99. The warm results lie within 0.0015 of the cold ones' distance to the truth, with the
+  // 0.99. The warm results lie within 0.003 of the cold ones' Dice to the truth, with the
   // truth's genus on every volume.
   const Starts starts = agree_with_cold_start(true, 0.985);
   EXPECT_GE(starts.warm, 4);
@@ -210,7 +210,7 @@ TEST(WarmStartPipeline, AChainFitsItsAnchorCarriedByTheMap) {
     const double fitted_dice = internal::dice(*r.labels, p.truth);
     const double mapped_dice = internal::dice(mapped, p.truth);
     std::printf("volume %d: Dice to truth tracked %.4f, mapped anchor %.4f, shift %.2f mm\n", i,
-                fitted_dice, mapped_dice, r.tracking.anchor_shift_mm.norm());
+                fitted_dice, mapped_dice, r.tracking.map.shift_mm.norm());
     EXPECT_GE(mapped_dice, fitted_dice - 0.01) << "volume " << i;
   }
   EXPECT_GE(tracked, 3);
