@@ -32,7 +32,7 @@ constexpr double kMostInsideMismatch = 0.0075;
 // varies by up to 3 % (0.6-3.6 %).
 constexpr float kMostOpenGrowth = 0.03f;
 // How much it may grow from the last volume's: a needle withdrawn half-way adds 1.8 % at once
-// (a 48³ cyst), within the limit above; breathing moves it by up to 0.7 % from one volume to the
+// (a 96³ cyst), within the limit above; breathing moves it by up to 0.7 % from one volume to the
 // next (simple 96³ at 10 volumes/s; echo at most 0.2 %: each volume fits the chain's anchor).
 constexpr float kMostOpenJump = 0.01f;
 // A bright set with this share of the inside's voxels deep inside the tracked surface is a needle

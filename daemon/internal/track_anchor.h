@@ -1,9 +1,9 @@
 #pragma once
 /// @file
 /// @brief The surface a tracking chain follows (track.h): the chain's first result's, carried to
-/// each volume by an affine map. Each volume's fit starts from the anchor where the last volume's
-/// map put it, not from the last fitted surface, so the speckle grains one fit follows are not
-/// carried into the next: fitted from the last surface, an echo chain drifted off the wall
+/// each volume by an affine map. Each volume's fit starts from the anchor where the maps predict
+/// it, not from the last fitted surface, so the speckle grains one fit follows are not carried
+/// into the next: fitted from the last surface, an echo chain drifted off the wall
 /// (docs/tuning.md, "Surface tracking").
 
 #include <memory>

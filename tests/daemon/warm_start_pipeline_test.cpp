@@ -185,7 +185,7 @@ TEST(WarmStartPipeline, AJumpedTargetFallsBackToAColdStart) {
   EXPECT_GE(internal::dice(*r.labels, truth), 0.95);
 }
 
-// Each tracked volume fits the chain's first surface where the last volume's map put it
+// Each tracked volume fits the chain's first surface where the maps predict it
 // (track_anchor.h): the chain keeps that anchor and its triangles, and the map alone follows the
 // breathing target, the mapped anchor within 0.01 of the tracked result's Dice to the truth.
 TEST(WarmStartPipeline, AChainFitsItsAnchorCarriedByTheMap) {
