@@ -2,7 +2,7 @@
 // reused buffers (as the daemon's worker runs it): per volume the reconstruction grid, the FFTW
 // plans made for it, the reconstruct stage's time, genus and Dice against the truth.
 //   breathing_bench [--phantom cyst-needle] [--size 128] [--spacing 0.4] [--volumes 40]
-//                   [--rate 10] [--warm [--track [--chain 10]]] [--realism echo]
+//                   [--rate 10] [--start 0] [--warm [--track [--chain 10]]] [--realism echo]
 //                   [--contrast C] [--quiet]
 // --warm: each volume's balloon starts inside the previous one's (daemon::WarmStart, 3 voxels in,
 // as the daemon's worker with a still target) and the seed is the previous deepest point, as the
@@ -30,7 +30,7 @@ using namespace sonomesh;
 struct Args {
   std::string phantom = "cyst-needle";
   int size_vox = 128, volumes = 40;
-  float spacing_mm = 0.4f, rate_hz = 10.0f;
+  float spacing_mm = 0.4f, rate_hz = 10.0f, start_s = 0.0f;
   float contrast = -1.0f;          // < 0: the phantom's own
   std::string realism = "simple";  // echo: sim::with_echo_realism
   bool quiet = false, warm_start = false, track = false;
@@ -132,7 +132,7 @@ Tally run_stream(const Args& a) {
   std::optional<daemon::WarmStart> warm;
   std::optional<volume::Vec3f> tracked_mm;
   for (int i = 0; i < a.volumes; ++i) {
-    const sim::Phantom p = sim::make_phantom(spec_at(a, float(i) / a.rate_hz));
+    const sim::Phantom p = sim::make_phantom(spec_at(a, a.start_s + float(i) / a.rate_hz));
     const std::size_t plans0 = reconstruct::internal::fft_plan_stats().plans_created;
     const volume::Vec3f seed_mm = tracked_mm.value_or(p.seed_mm);
     const daemon::PipelineResult r =
@@ -169,6 +169,8 @@ int main(int argc, char** argv) {
   app.add_option("--spacing", a.spacing_mm)->check(CLI::PositiveNumber);
   app.add_option("--volumes", a.volumes)->check(CLI::Range(1, 1000));
   app.add_option("--rate", a.rate_hz)->check(CLI::PositiveNumber);
+  app.add_option("--start", a.start_s, "breathing time of the first volume, s")
+      ->check(CLI::NonNegativeNumber);
   app.add_flag("--quiet", a.quiet, "summary only");
   app.add_option("--realism", a.realism, "simple or echo (sim::with_echo_realism)")
       ->check(CLI::IsMember({"simple", "echo"}));
