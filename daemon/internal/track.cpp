@@ -4,6 +4,7 @@
 #include <Eigen/Geometry>
 #include <cmath>
 #include <cstdio>
+#include <exception>
 #include <optional>
 #include <utility>
 
@@ -111,10 +112,15 @@ void take_surface(const volume::Volume& input, const reconstruct::SurfaceResult&
   tracked.labels = reconstruct::rasterize_labels(tracked.mesh, input);
 }
 
-// `result`'s surface as the anchor of the chain from here, its maps none.
+// `result`'s surface as the anchor of the chain from here, its maps none. An anchor whose own fit
+// fails is none (the next volume's balloon says why it did not track): the result stands.
 void start_chain_at(const volume::Volume& smoothed, const PipelineConfig& config,
                     PipelineResult& result) {
-  result.tracking.anchor = make_anchor(smoothed, result, config);
+  try {
+    result.tracking.anchor = make_anchor(smoothed, result, config);
+  } catch (const std::exception&) {
+    result.tracking.anchor.reset();
+  }
   result.tracking.map = result.tracking.last_map = {};
 }
 
@@ -188,9 +194,9 @@ std::string track_surface(const volume::Volume& input, const Vec3f& seed_mm,
                           const PipelineResult& previous, const Judge& judge,
                           PipelineResult& result) {
   if (previous.target != result.target) return "the polarity changed";
-  if (!previous.topology.manifold || previous.tracking.open_patch_base < 0.0f ||
-      !previous.tracking.anchor)
+  if (!previous.topology.manifold || previous.tracking.open_patch_base < 0.0f)
     return "the previous result has no base to check against";
+  if (!previous.tracking.anchor) return "the previous result gave no anchor to track from";
   const int threads = config.balloon.threads;
   const auto t = Clock::now();
   const segment::Mesh start = predicted_anchor(previous.tracking);
