@@ -169,19 +169,33 @@ std::vector<FilledCell> fill_dark_tunnels(volume::Volume& chi, float iso, float 
                                           int threads = 0);
 
 /// The same for a tunnel through the dark that no slice across an axis cuts into a closed hole
-/// (one running obliquely): the outside cells the inside closed by a cube of 4 cells' half-width
+/// (one running obliquely): the outside cells the inside closed by a cube of `half_width_cells`
 /// (dilated, then eroded) takes in, where the image there is under `dark_below`.
 std::vector<FilledCell> fill_dark_closing(volume::Volume& chi, float iso, float inside_value,
-                                          const volume::Volume& image, float dark_below);
+                                          const volume::Volume& image, float dark_below,
+                                          int half_width_cells);
+
+/// The image's levels close_dark_tunnels fills under.
+struct TunnelLevels {
+  float dark_below;    // a slice's hole whose cells are all under it
+  float target_level;  // the target's own (e.g. the balloon's seed region's)
+  // A thin sheet's cells under it (the tissue's level); none: no sheet is sought.
+  std::optional<float> sheet_below;
+  // The sheet's closing goes up to this half-width (2 or kWidestSheetCells): the wider one also
+  // takes in a double torus's narrow hole, so a caller asks for it where a needle was seen.
+  int widest_sheet_cells = 2;
+};
+inline constexpr int kWidestSheetCells = 3;
 
 /// fill_dark_tunnels on the surface's χ (`image` the smoothed volume with the target dark), then
-/// marching cubes and the seed's component again; on a surface of two handles or more whose
-/// genus that did not lower, fill_dark_closing instead, at the level half way from
-/// `target_level` (the target's own, e.g. the balloon's seed region's) to `dark_below`. Kept,
-/// returning true, only where that lowered the genus and the surface is closed and encloses the
-/// seed; otherwise `surface` is unchanged.
+/// marching cubes and the seed's component again. On a surface of two handles or more whose
+/// genus that did not lower, fill_dark_closing instead with 4 cells' half-width, at the level half
+/// way from `target_level` to `dark_below`; then with 2 cells', then up to `widest_sheet_cells` (a
+/// sheet a few cells thick where the balloon's fronts met) at `sheet_below` where it is given. Each
+/// is kept, returning true, only where it lowered the genus and the surface is closed and encloses
+/// the seed; otherwise `surface` is unchanged.
 bool close_dark_tunnels(SurfaceResult& surface, const Vec3f& seed_mm, const volume::Volume& image,
-                        float dark_below, float target_level, int threads = 0);
+                        const TunnelLevels& levels, int threads = 0);
 
 /// Label volume on the grid of `like` (UInt8, same dims/spacing/origin): 1 where the voxel centre
 /// is inside the closed mesh, by ray parity along x per (j, k) row. Rays are offset by a tiny,

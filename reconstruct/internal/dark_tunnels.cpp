@@ -1,5 +1,6 @@
 // Filling the surface's tunnels through the target's own darkness (reconstruct.h).
 #include <algorithm>
+#include <array>
 #include <bit>
 #include <cstdint>
 #include <limits>
@@ -148,6 +149,10 @@ float max_image(const volume::Volume& chi, const volume::Volume& image,
 // across is closed (the false one seen beside a needle was 4-7 cells across); a torus's hole
 // holds tissue, bright, and stays whatever its width.
 constexpr int kClosingCells = 4;
+// The half-widths for a sheet where the balloon's fronts met, a few cells thick: the narrower
+// first, as a wider closing also fills more of the wall's concave places, which can make a new
+// handle (docs/stopping.md item 11).
+constexpr std::array<int, 2> kSheetCells{2, kWidestSheetCells};
 
 // A box of cells as bits, 64 along x per word, each (y, z) row starting a word; cells beyond the
 // box are 0. The closing's passes then take 64 cells per operation.
@@ -279,12 +284,13 @@ std::vector<FilledCell> fill_dark_tunnels(volume::Volume& chi, float iso, float 
 }
 
 std::vector<FilledCell> fill_dark_closing(volume::Volume& chi, float iso, float inside_value,
-                                          const volume::Volume& image, float dark_below) {
+                                          const volume::Volume& image, float dark_below,
+                                          int half_width_cells) {
   std::vector<FilledCell> filled;
   const std::pair<Vec3i, Vec3i> box = inside_box(chi, iso);
-  const Vec3i lo = (box.first - Vec3i::Constant(kClosingCells)).cwiseMax(Vec3i::Zero());
+  const Vec3i lo = (box.first - Vec3i::Constant(half_width_cells)).cwiseMax(Vec3i::Zero());
   const Vec3i hi =
-      (box.second + Vec3i::Constant(kClosingCells)).cwiseMin(chi.dims() - Vec3i::Ones());
+      (box.second + Vec3i::Constant(half_width_cells)).cwiseMin(chi.dims() - Vec3i::Ones());
   if ((hi - lo).minCoeff() < 0) return filled;
   BitBox inside(hi - lo + Vec3i::Ones());
   for (int k = lo.z(); k <= hi.z(); ++k)
@@ -293,8 +299,8 @@ std::vector<FilledCell> fill_dark_closing(volume::Volume& chi, float iso, float 
         if (chi.f32()[chi.linear_index(i, j, k)] > iso)
           inside.set(i - lo.x(), j - lo.y(), k - lo.z());
   BitBox closed = inside;
-  closed.dilate(kClosingCells);
-  closed.erode(kClosingCells);
+  closed.dilate(half_width_cells);
+  closed.erode(half_width_cells);
   closed.for_each_not_in(inside, [&](int i, int j, int k) {
     const Vec3i cell = lo + Vec3i(i, j, k);
     if (volume::sample_mm(image, chi.index_to_mm(cell.cast<float>())) >= dark_below) return;
@@ -306,7 +312,7 @@ std::vector<FilledCell> fill_dark_closing(volume::Volume& chi, float iso, float 
 }
 
 bool close_dark_tunnels(SurfaceResult& surface, const Vec3f& seed_mm, const volume::Volume& image,
-                        float dark_below, float target_level, int threads) {
+                        const TunnelLevels& levels, int threads) {
   if (surface.topology.genus <= 0 || surface.indicator.empty()) return false;
   volume::Volume& chi = surface.indicator;
   const float at_seed = volume::sample_mm(chi, seed_mm);
@@ -315,7 +321,7 @@ bool close_dark_tunnels(SurfaceResult& surface, const Vec3f& seed_mm, const volu
   // χ is filled in place and given back unless the genus fell (no copy of the grid per volume).
   if (remesh_if_fewer_handles(
           surface, seed_mm,
-          fill_dark_tunnels(chi, surface.iso, inside_value, image, dark_below, threads)))
+          fill_dark_tunnels(chi, surface.iso, inside_value, image, levels.dark_below, threads)))
     return true;
   // More than one handle: one of them may be a dark tunnel running obliquely, which no slice
   // across an axis cuts into a closed hole (a single needle's tunnel is the common case, and
@@ -323,9 +329,22 @@ bool close_dark_tunnels(SurfaceResult& surface, const Vec3f& seed_mm, const volu
   // places the surface passes, on the wall's flank: it asks for darkness half way from the
   // target's level to `dark_below`, which the flank does not reach.
   if (surface.topology.genus < 2) return false;
-  const float closing_below = 0.5f * (target_level + dark_below);
-  return remesh_if_fewer_handles(
-      surface, seed_mm, fill_dark_closing(chi, surface.iso, inside_value, image, closing_below));
+  const float closing_below = 0.5f * (levels.target_level + levels.dark_below);
+  if (remesh_if_fewer_handles(
+          surface, seed_mm,
+          fill_dark_closing(chi, surface.iso, inside_value, image, closing_below, kClosingCells)))
+    return true;
+  // Or a sheet of outside where the fronts met round a needle, from its tunnel to the wall: its
+  // cells are the inside's, on the grains where the balloon stopped, so only the tissue's level
+  // tells them from a needle's echo.
+  if (!levels.sheet_below) return false;
+  for (const int half_width : kSheetCells)
+    if (half_width <= levels.widest_sheet_cells &&
+        remesh_if_fewer_handles(surface, seed_mm,
+                                fill_dark_closing(chi, surface.iso, inside_value, image,
+                                                  *levels.sheet_below, half_width)))
+      return true;
+  return false;
 }
 
 }  // namespace sonomesh::reconstruct

@@ -16,6 +16,9 @@ namespace {
 using volume::Vec3f;
 using volume::Vec3i;
 
+// The levels the pipeline passes for the images below: the inside 20, the tissue 100.
+constexpr TunnelLevels kLevels{60.0f, 20.0f, 100.0f};
+
 // A ball of radius 12 voxels pierced along z by a tunnel of radius 2.5: χ 1 inside, 0 outside;
 // the image 20 inside the ball, 100 in the tissue, and `tunnel_level` in the tunnel.
 struct Pierced {
@@ -54,7 +57,7 @@ TEST(DarkTunnels, ATunnelAsDarkAsTheInsideIsFilled) {
   const Pierced p = pierced_ball(20.0f);
   SurfaceResult s = surface_of(p);
   ASSERT_EQ(s.topology.genus, 1);
-  EXPECT_TRUE(close_dark_tunnels(s, p.seed_mm, p.image, 60.0f, 20.0f));
+  EXPECT_TRUE(close_dark_tunnels(s, p.seed_mm, p.image, kLevels));
   EXPECT_EQ(s.topology.genus, 0);
   EXPECT_TRUE(s.topology.watertight);
   EXPECT_EQ(s.topology.components, 1);
@@ -64,7 +67,7 @@ TEST(DarkTunnels, ATunnelRoundABrightNeedleStays) {
   const Pierced p = pierced_ball(100.0f);
   SurfaceResult s = surface_of(p);
   const std::size_t vertices = s.mesh.vertices.size();
-  EXPECT_FALSE(close_dark_tunnels(s, p.seed_mm, p.image, 60.0f, 20.0f));
+  EXPECT_FALSE(close_dark_tunnels(s, p.seed_mm, p.image, kLevels));
   EXPECT_EQ(s.topology.genus, 1);
   EXPECT_EQ(s.mesh.vertices.size(), vertices);
 }
@@ -118,10 +121,61 @@ TEST(DarkTunnels, AHandleNoSliceClosesIsFilledAndTheNeedleStays) {
       analyze_topology(component_enclosing(marching_cubes(chi, 0.5f), p.seed_mm, &enclosed)).genus,
       2)
       << "the slices close the handle: the test does not reach the closing";
-  EXPECT_TRUE(close_dark_tunnels(s, p.seed_mm, p.image, 60.0f, 20.0f));
+  EXPECT_TRUE(close_dark_tunnels(s, p.seed_mm, p.image, kLevels));
   EXPECT_EQ(s.topology.genus, 1);  // the needle's
   EXPECT_TRUE(s.topology.watertight);
   EXPECT_LT(volume::sample_mm(s.indicator, Vec3f(32, 32, 32)), 0.5f);  // on the needle
+}
+
+// A ball of radius 12 pierced along z through its centre by a bright needle, with a sheet of
+// outside `thickness` cells thick from the needle's tunnel to the wall (from y = 32, x < 32) over
+// a stretch of the needle (28 ≤ z ≤ 36): where the balloon's fronts met round the needle. Its
+// cells read 60, a grain of the inside, above the closing's level and under the tissue's. The
+// sheet meets the surface on two sides, so it is a handle.
+Pierced needle_and_sheet(int thickness = 2) {
+  Pierced p = pierced_ball(200.0f);
+  for (int k = 28; k <= 36; ++k)
+    for (int j = 32; j < 32 + thickness; ++j)
+      for (int i = 0; i < 32; ++i) {
+        const std::size_t at = p.chi.linear_index(i, j, k);
+        if (p.chi.f32()[at] < 0.5f || Vec3f(i - 32.0f, j - 32.0f, k - 32.0f).norm() > 12.0f)
+          continue;
+        p.chi.f32()[at] = 0.0f;
+        p.image.f32()[at] = 60.0f;
+      }
+  return p;
+}
+
+TEST(DarkTunnels, ASheetWhereTheFrontsMetIsFilledAndTheNeedleStays) {
+  const Pierced p = needle_and_sheet();
+  SurfaceResult s = surface_of(p);
+  ASSERT_EQ(s.topology.genus, 2);
+  EXPECT_TRUE(close_dark_tunnels(s, p.seed_mm, p.image, kLevels));
+  EXPECT_EQ(s.topology.genus, 1);  // the needle's
+  EXPECT_TRUE(s.topology.watertight);
+  EXPECT_GT(volume::sample_mm(s.indicator, Vec3f(24, 32.5f, 32)), 0.5f);  // the sheet
+  EXPECT_LT(volume::sample_mm(s.indicator, Vec3f(32, 32, 32)), 0.5f);     // on the needle
+}
+
+TEST(DarkTunnels, AThickerSheetAsksForTheWiderCube) {
+  for (const int widest : {2, kWidestSheetCells}) {
+    const Pierced p = needle_and_sheet(5);
+    SurfaceResult s = surface_of(p);
+    ASSERT_EQ(s.topology.genus, 2);
+    TunnelLevels levels = kLevels;
+    levels.widest_sheet_cells = widest;
+    EXPECT_EQ(close_dark_tunnels(s, p.seed_mm, p.image, levels), widest > 2) << widest;
+    EXPECT_EQ(s.topology.genus, widest > 2 ? 1 : 2) << widest;
+  }
+}
+
+TEST(DarkTunnels, ASheetAsBrightAsTheTissueStays) {
+  Pierced p = needle_and_sheet();
+  for (float& v : p.image.f32())
+    if (v == 60.0f) v = 100.0f;
+  SurfaceResult s = surface_of(p);
+  EXPECT_FALSE(close_dark_tunnels(s, p.seed_mm, p.image, kLevels));
+  EXPECT_EQ(s.topology.genus, 2);
 }
 
 // The slices' holes the plain way: per axis in turn, per slice of the inside cells' box (grown by
