@@ -223,7 +223,8 @@ struct PipelineResult {
   /// stricter self-intersection test because one before it in the stream had: the next volume's
   /// balloons start strict too, rather than crumple and inflate twice.
   bool crumpled = false;
-  /// Tunnels through the target's own darkness were filled (reconstruct::close_dark_tunnels).
+  /// Tunnels through the target's own darkness, or sheets where the balloon's fronts met, were
+  /// filled (reconstruct::close_dark_tunnels).
   bool dark_tunnels_closed = false;
   /// More handles than a target has: the tunnels round columns of tissue were filled too.
   bool tissue_columns_filled = false;
