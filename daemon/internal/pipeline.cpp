@@ -149,30 +149,6 @@ std::optional<internal::DeepestPoint> deepest_point(const volume::Volume& indica
   return deepest;
 }
 
-// Tunnels no wall explains are filled: those through the target's own darkness (nothing in them
-// reaches the wall's mid level) and the sheets where the balloon's fronts met (nothing in them
-// as bright as the tissue), and, on a surface with more handles than a target has, those round
-// columns of tissue inside it (nothing in them brighter than the tissue by half the contrast): a
-// reader's contour of a cavity takes in its trabeculae and papillary muscles, while a needle's
-// specular echo is brighter than tissue and its tunnel stays. No sheet is sought on such a
-// surface: its verdict ("implausible genus") sends a low contrast volume to the coarse retry.
-void close_false_tunnels(const volume::Volume& smoothed, const Vec3f& seed_mm, int threads,
-                         PipelineResult& result, reconstruct::SurfaceResult& surface) {
-  const segment::BalloonStats& stats = result.balloon_stats;
-  const float contrast = stats.tissue_level - stats.seed_level;
-  const bool implausible = surface.topology.genus > internal::kMostHandles;
-  reconstruct::TunnelLevels levels{stats.seed_level + 0.5f * contrast, stats.seed_level,
-                                   stats.tissue_level};
-  // (Fronts meet round a needle; a needle in a probe's sector casts a shadow.)
-  if (result.shadow_voxels > 0) levels.widest_sheet_cells = reconstruct::kWidestSheetCells;
-  if (implausible) {
-    levels.dark_below = stats.tissue_level + 0.5f * contrast;
-    levels.sheet_below.reset();
-  }
-  const bool closed = reconstruct::close_dark_tunnels(surface, seed_mm, smoothed, levels, threads);
-  (implausible ? result.tissue_columns_filled : result.dark_tunnels_closed) = closed;
-}
-
 // The first reconstruction's cell: coarser than the voxel for a thick target (thick_cell_scale).
 // That surface carries the topology to the reinflation and the wall fit; the one returned is made
 // again from the fitted surface (resurface_stage). A feature narrower than kFeatureCells of the
@@ -225,7 +201,7 @@ std::string surface_stage(const volume::Volume& input, const volume::Volume& smo
   // A warm result of the previous result's genus has no handle to explain.
   if (!(known_genus && surface.topology.genus <= *known_genus)) {
     const auto t_tunnels = Clock::now();
-    close_false_tunnels(smoothed, seed_mm, config.balloon.threads, result, surface);
+    internal::close_false_tunnels(smoothed, seed_mm, config.balloon.threads, result, surface);
     surface.mesh_ms += ms_since(t_tunnels);
   }
   result.timings.mesh_ms = surface.mesh_ms;

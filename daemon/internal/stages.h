@@ -52,6 +52,13 @@ reconstruct::PoissonOptions poisson_options(const PipelineConfig& config,
 /// phantom's double torus (about 10 voxels) on voxel cells: on 1.5-voxel cells it lost a tube.
 float thick_cell_scale(const segment::Mesh& surface, float vox_mm);
 
+/// Tunnels no wall explains filled on the first reconstruction (reconstruct::close_dark_tunnels
+/// at the balloon's levels): through the target's own darkness, sheets where the balloon's fronts
+/// met, and on a surface of more handles than a target has, round columns of tissue; `result`
+/// says which (dark_tunnels_closed, tissue_columns_filled).
+void close_false_tunnels(const volume::Volume& smoothed, const Vec3f& seed_mm, int threads,
+                         PipelineResult& result, reconstruct::SurfaceResult& surface);
+
 /// `surface` (closed, of `genus`) made again from its own oriented samples by Kazhdan's
 /// reconstruction, on cells 1.25 times the configured ones (`coarser_when_thick` with
 /// `cell_from_voxel`: or thick_cell_scale's, if coarser), then on the configured ones where that
