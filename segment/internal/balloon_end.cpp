@@ -56,13 +56,17 @@ bool BalloonEvolution::crumpling() {
 // is a fold of the balloon: it is type 1, as if it had taken the step into what was
 // swept (the opening removes it). Kept as a wall, a fold's sheets are extra layers of the surface
 // in the samples, and the indicator counts each layer: its iso value, their mean, then cuts off
-// the parts of the target that have one layer (docs/stopping.md item 16).
+// the parts of the target that have one layer (docs/stopping.md item 16). A vertex still moving
+// at the end in a fold is one too: it trades places with the fold's other sheet in swept voxels,
+// and left to the limit it would read as a wall the balloon had not reached.
 void BalloonEvolution::open_folds() {
   const std::vector<Vec3f> normal = vertex_normals(bm_);
   const FrontGrid::Reader reader(marks_.grid());
   for (std::uint32_t v = 0; v < bm_.n_vertices(); ++v) {
     VertexState& s = bm_.state(Vertex{v});
-    if (s.reason == StopReason::Boundary && !normal[v].isZero() &&
+    const bool on_wall_or_moving =
+        s.reason == StopReason::Boundary || s.reason == StopReason::IterationLimit;
+    if (on_wall_or_moving && !normal[v].isZero() &&
         in_fold(reader, bm_.point_mm(Vertex{v}), normal[v]))
       s.reason = StopReason::SelfIntersection;
   }
