@@ -17,6 +17,7 @@
 #include <array>
 #include <cstddef>
 #include <cstdint>
+#include <optional>
 #include <span>
 #include <stop_token>
 #include <string>
@@ -263,11 +264,21 @@ struct WallFitOptions {
   int rings = 3;           // the profiles are averaged over the vertex's neighbours this often
   float max_move_vox = 1.0f;
   float min_rise_fraction = 0.25f;  // of (tissue_level - seed_level): less is no wall
+  /// A probe's apex, where its sector gives one. A wall the beam runs along (kFacingProbeCos)
+  /// returns little echo of its own and the tissue beside it reads dark (dropout): the image
+  /// rises from the wall but reaches half way only beyond it, so those vertices cross at
+  /// `along_beam_fraction` of the way instead of half (docs/stopping.md item 13).
+  std::optional<Vec3f> probe_apex_mm;
+  float along_beam_fraction = 0.45f;
 };
+
+/// A wall faces the probe where the beam meets it within 45° of square: |cos| above this.
+inline constexpr float kFacingProbeCos = 0.7f;
 
 /// Beyond the paper: each vertex of `surface` moves along its normal to where the image,
 /// averaged over the surface around it, crosses half way from its lowest level behind the vertex
-/// to its highest ahead. A single vertex's profile crosses on a speckle grain; the average over
+/// to its highest ahead (or, along a probe's beam, WallFitOptions::along_beam_fraction of the
+/// way). A single vertex's profile crosses on a speckle grain; the average over
 /// the rings crosses on the wall. Connectivity is kept. `first_pass` gives the levels that tell
 /// a wall from none. `threads` as BalloonOptions::threads.
 /// @throws std::invalid_argument for an empty volume, a triangle index out of range, a

@@ -97,6 +97,17 @@ bool thin_and_closed(const volume::Volume& input, const PipelineResult& r) {
   return r.topology.genus == 0 && thin(input, r);
 }
 
+// Two ok results that look as open: a first thin and closed (asked as a tube's stall with its
+// caps on grains) gives way to an other that is not thin, of as many handles. (The 64³ echo
+// ventricle of seed 4 at contrast 0.5, Ψ_cost first, since the wall fit's along-beam crossing:
+// both open 0, Ψ_cost's thin result Dice 0.906, the level stop's 0.952.)
+bool deeper_of_two_closed(const volume::Volume& input, const PipelineResult& first,
+                          const PipelineResult& other) {
+  return first.ok && first.quality_ok && other.ok && other.quality_ok && other.open_patch >= 0.0f &&
+         other.open_patch <= first.open_patch && other.topology.genus >= first.topology.genus &&
+         thin_and_closed(input, first) && !thin(input, other);
+}
+
 // Measures `r`'s open patch (it is ok) and says whether it asks for the second opinion: only if
 // it is still open against the levels behind it. A wall in a needle's shadow looks open against
 // the target's level; the level stop would run along the shadow and be sealed there, never
@@ -132,7 +143,9 @@ float coarse_sigma_mm(const volume::Volume& input, float grain_mm, float grains)
 // sigma, and the wall fit with a reach and a move that span the coarse pre-filter's pull inward
 // (2-3 voxels), averaged over more rings, since this image keeps more of the speckle.
 constexpr float kFineFitSigmaFraction = 0.5f;
-constexpr segment::WallFitOptions kFineFit{.reach_vox = 4.0f, .rings = 7, .max_move_vox = 3.0f};
+// (No probe apex: the along-beam crossing took the low-contrast retries' walls further in.)
+constexpr segment::WallFitOptions kFineFit{
+    .reach_vox = 4.0f, .rings = 7, .max_move_vox = 3.0f, .probe_apex_mm = std::nullopt};
 
 // Fits a coarse retry's surface to the wall on a finer image than the first pass's: the coarse
 // pre-filter blurs the wall inward. Leaves `buffers.smoothed` holding that image.
@@ -250,7 +263,7 @@ std::string segment_opinions(const volume::Volume& input, const Vec3f& seed_mm,
     open_widely(buffers, config.balloon.threads, other);
   else if (other.ok && other.quality_ok && checked)
     confirm_in_place(input, buffers, config.balloon.threads, judge, other_error, other);
-  if (!better(other, result)) return error;
+  if (!better(other, result) && !deeper_of_two_closed(input, result, other)) return error;
   result = std::move(other);
   return other_error;
 }

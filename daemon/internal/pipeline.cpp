@@ -341,7 +341,7 @@ PipelineConfig after_crumple(PipelineConfig config) {
 }
 
 PipelineResult run_volume(const volume::Volume& input, const Vec3f& seed_mm,
-                          const PipelineConfig& config, PipelineBuffers& buffers,
+                          const PipelineConfig& configured, PipelineBuffers& buffers,
                           const WarmStart* warm, std::stop_token stop) {
   const auto start = Clock::now();
   PipelineResult result;
@@ -367,7 +367,7 @@ PipelineResult run_volume(const volume::Volume& input, const Vec3f& seed_mm,
   // A volume tracking one that lifted no shadow skips the search (10 ms at 128³, 40-60 on
   // tomaat), one that lifted a shadow looks near the last casters (about 5 ms): a needle that
   // comes in makes the tracker refuse, and the balloon's image has it after the whole search.
-  const bool track = trackable(config, warm);
+  const bool track = trackable(configured, warm);
   using internal::ShadowSearch;
   const ShadowSearch search = !track                               ? ShadowSearch::Whole
                               : warm->previous->shadow_voxels == 0 ? ShadowSearch::None
@@ -375,9 +375,10 @@ PipelineResult run_volume(const volume::Volume& input, const Vec3f& seed_mm,
   // A tracked volume's readers look near the last surface: only that region is smoothed.
   const std::optional<internal::IndexBox> region =
       track ? std::optional(internal::tracked_region(input, *warm->previous)) : std::nullopt;
-  no_data = &internal::smooth_stage(input, seed_mm, config, buffers, result, search,
+  no_data = &internal::smooth_stage(input, seed_mm, configured, buffers, result, search,
                                     region ? &*region : nullptr);
   if (stop.stop_requested()) return finish("stopped");
+  const PipelineConfig config = internal::with_probe_apex(configured, buffers, result);
   if (track) {
     try {
       result.tracking.refused =

@@ -32,15 +32,13 @@ double moving_area_mm2(const segment::Mesh& surface, const std::vector<char>& he
 
 // Over more rings than the fit on the smoothed image: the unsmoothed image's speckle is finer.
 constexpr int kUnsmoothedFitRings = 5;
-// A wall the beam meets within 45° of square (docs/stopping.md item 13).
-constexpr float kFacingCos = 0.7f;
 
 std::vector<char> facing_the_probe(const segment::Mesh& surface, const Vec3f& apex_mm) {
   const std::vector<Vec3f> normal = mesh::vertex_normals(surface);
   std::vector<char> facing(normal.size(), 0);
   for (std::size_t v = 0; v < normal.size(); ++v) {
     const Vec3f ray = (surface.vertices[v] - apex_mm).normalized();
-    facing[v] = std::abs(ray.dot(normal[v])) > kFacingCos ? 1 : 0;
+    facing[v] = std::abs(ray.dot(normal[v])) > segment::kFacingProbeCos ? 1 : 0;
   }
   return facing;
 }

@@ -142,6 +142,15 @@ const std::vector<std::uint8_t>& smooth_stage(const volume::Volume& input, const
   return no_data.mask;
 }
 
+PipelineConfig with_probe_apex(const PipelineConfig& config, const PipelineBuffers& buffers,
+                               const PipelineResult& result) {
+  PipelineConfig c = config;
+  c.wall_fit_options.probe_apex_mm.reset();
+  if (result.target == TargetPolarity::Dark)
+    c.wall_fit_options.probe_apex_mm = buffers.no_data.apex_mm;
+  return c;
+}
+
 namespace {
 
 // Whether smooth_stage smoothed buffers.working for `first` rather than the input itself.

@@ -29,6 +29,11 @@ const std::vector<std::uint8_t>& smooth_stage(const volume::Volume& input, const
                                               ShadowSearch search = ShadowSearch::Whole,
                                               const IndexBox* region = nullptr);
 
+/// `config` for the volume smooth_stage gave `result`: its wall fit told the probe's apex where
+/// that found one for a dark target (segment::WallFitOptions::probe_apex_mm).
+PipelineConfig with_probe_apex(const PipelineConfig& config, const PipelineBuffers& buffers,
+                               const PipelineResult& result);
+
 /// The same volume smoothed again at `sigma_mm` (the coarse retry, the fine fit), after
 /// smooth_stage gave `first`: the image it left in `buffers` (polarity, no-data fill, lifted
 /// shadow) is smoothed as it is, not made again; `result` takes first's grain, polarity and

@@ -1,6 +1,6 @@
 // The last placement of the surface on the wall (segment.h, fit_to_wall): each vertex goes to
 // where the image, averaged over the surface around it, crosses half way from the inside's level
-// to the wall's.
+// to the wall's (less along a probe's beam).
 #include <algorithm>
 #include <cmath>
 #include <limits>
@@ -48,15 +48,15 @@ void average_over_rings(std::vector<float>& values, int width, const CornerTable
   }
 }
 
-// Where the averaged profile (samples at (j - centre) · step) crosses half way from its lowest
-// level behind the vertex to its highest ahead, nearest the vertex; 0 where it rises less than
-// `min_rise` (no wall: a dropout, a seal) or nowhere crosses.
-float crossing_offset(const float* profile, int width, float step, float min_rise) {
+// Where the averaged profile (samples at (j - centre) · step) crosses `fraction` of the way from
+// its lowest level behind the vertex to its highest ahead, nearest the vertex; 0 where it rises
+// less than `min_rise` (no wall: a dropout, a seal) or nowhere crosses.
+float crossing_offset(const float* profile, int width, float step, float min_rise, float fraction) {
   const int centre = width / 2;
   const float lo = *std::min_element(profile, profile + centre + 1);
   const float hi = *std::max_element(profile + centre, profile + width);
   if (!(hi - lo >= min_rise)) return 0.0f;
-  const float mid = 0.5f * (lo + hi);
+  const float mid = lo + fraction * (hi - lo);
   float best = 0.0f, best_abs = std::numeric_limits<float>::max();
   for (int j = 0; j + 1 < width; ++j) {
     if (!(profile[j] < mid && profile[j + 1] >= mid)) continue;
@@ -65,6 +65,14 @@ float crossing_offset(const float* profile, int width, float step, float min_ris
     if (std::abs(t) < best_abs) best = t, best_abs = std::abs(t);
   }
   return best_abs < std::numeric_limits<float>::max() ? best : 0.0f;
+}
+
+// How far from the inside's level to the wall's vertex p with normal n crosses: half way, or
+// along a probe's beam less (WallFitOptions::probe_apex_mm).
+float crossing_fraction(const WallFitOptions& o, const Vec3f& p, const Vec3f& n) {
+  if (!o.probe_apex_mm) return 0.5f;
+  const Vec3f beam = (p - *o.probe_apex_mm).normalized();
+  return std::abs(beam.dot(n)) > kFacingProbeCos ? 0.5f : o.along_beam_fraction;
 }
 
 // Each vertex's image along its normal, `width` samples `step_mm` apart centred on the vertex
@@ -91,10 +99,11 @@ void check_input(const volume::Volume& smoothed, const BalloonStats& first_pass,
   if (!(first_pass.tissue_level > first_pass.seed_level))
     throw std::invalid_argument("fit_to_wall: first_pass holds no seed statistics");
   if (!(o.step_vox > 0.0f) || !(o.reach_vox >= o.step_vox) || o.rings < 0 ||
-      !(o.max_move_vox >= 0.0f) || !(o.min_rise_fraction >= 0.0f))
+      !(o.max_move_vox >= 0.0f) || !(o.min_rise_fraction >= 0.0f) ||
+      !(o.along_beam_fraction > 0.0f && o.along_beam_fraction < 1.0f))
     throw std::invalid_argument(
-        "fit_to_wall: need step_vox > 0, reach_vox >= step_vox, rings >= 0, max_move_vox >= 0 "
-        "and min_rise_fraction >= 0");
+        "fit_to_wall: need step_vox > 0, reach_vox >= step_vox, rings >= 0, max_move_vox >= 0, "
+        "min_rise_fraction >= 0 and along_beam_fraction in (0, 1)");
 }
 
 }  // namespace
@@ -118,7 +127,8 @@ Mesh fit_to_wall(const volume::Volume& smoothed_in, const Mesh& surface,
   const std::size_t nv = surface.vertices.size();
   std::vector<float> offset(nv);
   for (std::size_t v = 0; v < nv; ++v)
-    offset[v] = crossing_offset(&profiles[v * width], width, step_mm, min_rise);
+    offset[v] = crossing_offset(&profiles[v * width], width, step_mm, min_rise,
+                                crossing_fraction(options, surface.vertices[v], normal[v]));
   average_over_rings(offset, 1, nb, 1, workers);
   Mesh fitted = surface;
   const float max_mm = options.max_move_vox * vox_mm;

@@ -1,11 +1,14 @@
 // The wall fit (segment::fit_to_wall): a surface a voxel short of the wall, or beyond it, goes to
-// the wall; nothing moves where there is no wall; no vertex moves further than the bound.
+// the wall; nothing moves where there is no wall; no vertex moves further than the bound; along
+// a probe's beam the crossing lies lower on the rise.
 #include <gtest/gtest.h>
 
 #include <cmath>
 #include <stdexcept>
+#include <vector>
 
 #include "../reconstruct/shapes.h"
+#include "mesh/mesh.h"
 #include "segment/segment.h"
 #include "sim/sim.h"
 
@@ -96,6 +99,34 @@ TEST(WallFit, NoVertexMovesFurtherThanTheBound) {
   EXPECT_GT(most, 0.9 * t.vox_mm) << "the wall was in reach: the bound held the vertices back";
 }
 
+// With a probe's apex, the vertices whose wall runs along the beam cross lower on the rise, and
+// so further in; those facing the probe cross half way as without one.
+TEST(WallFit, AlongTheBeamTheCrossingLiesLowerOnTheRise) {
+  const Target t = speckled_sphere();
+  const Mesh start = reconstruct::test::uv_sphere(t.centre_mm, t.radius_mm, 48, 24);
+  segment::WallFitOptions beam;
+  beam.probe_apex_mm = t.centre_mm - Vec3f(0.0f, 0.0f, 40.0f * t.vox_mm);
+  const Mesh half = segment::fit_to_wall(t.smoothed, start, t.levels);
+  const Mesh lower = segment::fit_to_wall(t.smoothed, start, t.levels, beam);
+  const std::vector<Vec3f> normal = mesh::vertex_normals(start);
+  double along_in_vox = 0, facing_in_vox = 0;
+  int along = 0, facing = 0;
+  for (std::size_t v = 0; v < start.vertices.size(); ++v) {
+    const Vec3f ray = (start.vertices[v] - *beam.probe_apex_mm).normalized();
+    const double in_vox =
+        ((half.vertices[v] - t.centre_mm).norm() - (lower.vertices[v] - t.centre_mm).norm()) /
+        t.vox_mm;
+    if (std::abs(ray.dot(normal[v])) > segment::kFacingProbeCos)
+      facing_in_vox += in_vox, ++facing;
+    else
+      along_in_vox += in_vox, ++along;
+  }
+  ASSERT_GT(along, 0);
+  ASSERT_GT(facing, 0);
+  EXPECT_GT(along_in_vox / along, 0.05);
+  EXPECT_LT(std::abs(facing_in_vox / facing), 0.02);
+}
+
 TEST(WallFit, RejectsBadInput) {
   const Target t = speckled_sphere();
   Mesh bad = reconstruct::test::uv_sphere(t.centre_mm, t.radius_mm, 8, 4);
@@ -104,6 +135,9 @@ TEST(WallFit, RejectsBadInput) {
                std::invalid_argument);
   segment::WallFitOptions options;
   options.step_vox = 0.0f;
+  EXPECT_THROW(segment::fit_to_wall(t.smoothed, bad, t.levels, options), std::invalid_argument);
+  options = {};
+  options.along_beam_fraction = 1.0f;
   EXPECT_THROW(segment::fit_to_wall(t.smoothed, bad, t.levels, options), std::invalid_argument);
   bad.triangles.push_back({0, 1, 9999});
   EXPECT_THROW(segment::fit_to_wall(t.smoothed, bad, t.levels), std::invalid_argument);
