@@ -12,24 +12,14 @@
 
 #include "daemon/internal/metrics.h"
 #include "daemon/pipeline.h"
+#include "echo_phantoms.h"
 #include "sim/sim.h"
 
 namespace sonomesh::daemon {
 namespace {
 
-sim::Phantom echo_phantom(const std::string& name, float contrast, int size_vox = 64,
-                          unsigned seed = 1) {
-  sim::PhantomSpec spec{.phantom = name, .size_vox = size_vox, .seed = seed};
-  spec.contrast = contrast;
-  return sim::make_phantom(sim::with_echo_realism(spec));
-}
-
-// The volume of `phantom`'s truth.
-double truth_ml(const sim::Phantom& phantom) {
-  double voxels = 0;
-  for (const std::uint8_t v : phantom.truth.u8()) voxels += v != 0;
-  return voxels * phantom.truth.spacing_mm().prod() * 1e-3;
-}
+using test::echo_phantom;
+using test::truth_ml;
 
 // The default pipeline on `phantom` with one of its steps off, then on; both with labels.
 std::pair<PipelineResult, PipelineResult> off_and_on(const sim::Phantom& phantom,

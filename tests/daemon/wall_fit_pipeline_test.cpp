@@ -4,27 +4,18 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
-#include <cstdint>
 #include <string>
 
 #include "daemon/internal/metrics.h"
 #include "daemon/pipeline.h"
+#include "echo_phantoms.h"
 #include "sim/sim.h"
 
 namespace sonomesh::daemon {
 namespace {
 
-sim::Phantom echo_phantom(const std::string& name, float contrast, unsigned seed) {
-  sim::PhantomSpec spec{.phantom = name, .size_vox = 96, .seed = seed};
-  spec.contrast = contrast;
-  return sim::make_phantom(sim::with_echo_realism(spec));
-}
-
-double truth_ml(const sim::Phantom& phantom) {
-  double voxels = 0;
-  for (const std::uint8_t v : phantom.truth.u8()) voxels += v != 0;
-  return voxels * phantom.truth.spacing_mm().prod() * 1e-3;
-}
+using test::echo_phantom;
+using test::truth_ml;
 
 struct Outcome {
   double volume_error = 0.0, dice = 0.0;
@@ -48,7 +39,7 @@ TEST(WallFitPipeline, AWallAlongTheBeamIsPlacedWhereItsDropoutBegins) {
     unsigned seed;
   };
   for (const Case c : {Case{"lv", 0.7f, 1}, Case{"lv", 0.7f, 2}, Case{"cyst-needle", 0.5f, 2}}) {
-    const sim::Phantom phantom = echo_phantom(c.phantom, c.contrast, c.seed);
+    const sim::Phantom phantom = echo_phantom(c.phantom, c.contrast, 96, c.seed);
     const Outcome lower = run(phantom, segment::WallFitOptions{}.along_beam_fraction);
     const Outcome half = run(phantom, 0.5f);
     const std::string name = std::string(c.phantom) + " seed " + std::to_string(c.seed);
