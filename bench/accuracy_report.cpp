@@ -9,6 +9,9 @@
 // between the result's label volume and the truth. "balloon Dice" rasterizes the balloon itself,
 // which tells whether accuracy is lost in the first step (balloon) or the second (opening +
 // reconstruction). Volume error compares the mesh's enclosed volume with the truth's voxels.
+// "wall_offset_vox" (JSON only): the result's vertices' mean signed distance from the truth's
+// wall (outside positive), and in a probe's sector apart for those facing the probe and those
+// whose wall runs along the beam (docs/stopping.md item 13).
 #include <CLI/CLI.hpp>
 #include <algorithm>
 #include <cmath>
@@ -21,7 +24,10 @@
 
 #include "daemon/internal/metrics.h"
 #include "daemon/internal/run_config.h"
+#include "daemon/internal/shadow_gain.h"
+#include "daemon/internal/target_image.h"
 #include "daemon/pipeline.h"
+#include "mesh/mesh.h"
 #include "sim/sim.h"
 
 namespace {
@@ -39,6 +45,47 @@ std::string joined(const std::vector<std::string>& items) {
   std::string out;
   for (const auto& s : items) out += (out.empty() ? "" : "; ") + s;
   return out;
+}
+
+// The truth's signed distance in voxels, negative inside, its wall half way between an inside
+// voxel's centre and an outside one's.
+volume::Volume signed_distance_vox(const volume::Volume& truth) {
+  const std::vector<std::uint8_t>& t = truth.u8();
+  std::vector<bool> inside(t.size()), outside(t.size());
+  for (std::size_t i = 0; i < t.size(); ++i) inside[i] = t[i] != 0, outside[i] = t[i] == 0;
+  const volume::Vec3f unit = volume::Vec3f::Ones();
+  const auto to_inside =
+      daemon::internal::squared_distance_transform_mm2(inside, truth.dims(), unit);
+  const auto to_outside =
+      daemon::internal::squared_distance_transform_mm2(outside, truth.dims(), unit);
+  volume::Volume sd(truth.dims(), truth.spacing_mm(), truth.origin_mm(),
+                    volume::VoxelType::Float32);
+  std::vector<float>& v = sd.f32();
+  for (std::size_t i = 0; i < t.size(); ++i)
+    v[i] = inside[i] ? 0.5f - std::sqrt(to_outside[i]) : std::sqrt(to_inside[i]) - 0.5f;
+  return sd;
+}
+
+// The surface's vertices' mean signed distance from the truth's wall, all of them and, where the
+// image is a probe's sector, those facing its apex and those along its beams.
+json wall_offsets(const sim::Phantom& phantom, const segment::Mesh& surface) {
+  if (surface.vertices.empty()) return nullptr;
+  const volume::Volume sd = signed_distance_vox(phantom.truth);
+  const std::optional<volume::Vec3f> apex = daemon::internal::sector_apex_mm(
+      phantom.image, daemon::internal::no_data_mask(phantom.image));
+  const std::vector<volume::Vec3f> normal = mesh::vertex_normals(surface);
+  double sum[3] = {0, 0, 0};
+  int count[3] = {0, 0, 0};  // all, facing, along the beam
+  for (std::size_t v = 0; v < surface.vertices.size(); ++v) {
+    const double d = volume::sample_mm(sd, surface.vertices[v]);
+    sum[0] += d, ++count[0];
+    if (!apex) continue;
+    const volume::Vec3f beam = (surface.vertices[v] - *apex).normalized();
+    const int k = std::abs(beam.dot(normal[v])) > segment::kFacingProbeCos ? 1 : 2;
+    sum[k] += d, ++count[k];
+  }
+  const auto mean = [&](int k) { return count[k] ? json(sum[k] / count[k]) : json(nullptr); };
+  return {{"all", mean(0)}, {"facing", mean(1)}, {"along_beam", mean(2)}};
 }
 
 void print_header() {
@@ -100,6 +147,7 @@ json measure(const sim::PhantomSpec& spec, const daemon::RunConfig& config, int 
               {"volume_error", volume_error},
               {"msd_vox", distances.mean_vox},
               {"hd95_vox", distances.hd95_vox},
+              {"wall_offset_vox", result.ok ? wall_offsets(phantom, result.mesh) : json(nullptr)},
               {"genus_found", result.topology.genus},
               {"watertight", result.topology.watertight},
               {"components", result.topology.components},

@@ -210,6 +210,9 @@ std::vector<OptionSpec> pipeline_options() {
                    REF(pipeline.wall_fit)));
   o.push_back(flag("pipeline", "fit_unsmoothed", "the wall fit again on the unsmoothed image",
                    REF(pipeline.fit_unsmoothed)));
+  o.push_back(num("pipeline", "wall_fit_along_beam", "fraction", open(0, 1),
+                  "how far up the rise a wall along a probe's beam is crossed (0.5: half way)",
+                  REF(pipeline.wall_fit_options.along_beam_fraction)));
   o.push_back(flag("pipeline", "resurface", "rebuild the fitted surface", REF(pipeline.resurface)));
   o.push_back(flag("pipeline", "cell_from_voxel", "true: poisson.cell_mm = the finest spacing",
                    REF(pipeline.cell_from_voxel)));
