@@ -144,7 +144,7 @@ float coarse_sigma_mm(const volume::Volume& input, float grain_mm, float grains)
 // (2-3 voxels), averaged over more rings, since this image keeps more of the speckle.
 constexpr float kFineFitSigmaFraction = 0.5f;
 // (No probe apex: the along-beam crossing took the low-contrast retries' walls further in.)
-constexpr segment::WallFitOptions kFineFit{
+const segment::WallFitOptions kFineFit{
     .reach_vox = 4.0f, .rings = 7, .max_move_vox = 3.0f, .probe_apex_mm = std::nullopt};
 
 // Fits a coarse retry's surface to the wall on a finer image than the first pass's: the coarse
