@@ -2,8 +2,8 @@
 // value against its spec and of the options against each other, the TOML text.
 #include <toml++/toml.h>
 
+#include <charconv>
 #include <cmath>
-#include <cstdio>
 #include <sstream>
 
 #include "daemon/internal/run_config.h"
@@ -92,9 +92,13 @@ std::string option_toml(const OptionValue& value) {
       if (v == std::floor(v) && std::fabs(v) < 1e15) {
         return std::to_string(static_cast<long long>(v));
       }
+      // The shortest text that reads back as the same value: a float field's as a float (0.45,
+      // not 0.449999988), any other as a double.
       char buf[64];
-      std::snprintf(buf, sizeof buf, "%.9g", v);
-      std::string s = buf;
+      const auto f = static_cast<float>(v);
+      const char* end = static_cast<double>(f) == v ? std::to_chars(buf, buf + sizeof buf, f).ptr
+                                                    : std::to_chars(buf, buf + sizeof buf, v).ptr;
+      std::string s(buf, static_cast<std::size_t>(end - buf));
       if (s.find_first_of(".eEn") == std::string::npos) s += ".0";
       return s;
     }

@@ -169,6 +169,24 @@ TEST(RunOptions, WhatLoadsTheBalloonAccepts) {
   EXPECT_NE(err->find("pipeline.balloon: time_step * inflation_vox"), std::string::npos) << *err;
 }
 
+// A float field's default prints as written (0.45, not 0.449999988), and any value prints as
+// text that loads back as the same value.
+TEST(RunOptions, NumbersPrintShortAndLoadBackTheSame) {
+  EXPECT_EQ(option_toml(static_cast<double>(0.45f)), "0.45");
+  EXPECT_EQ(option_toml(static_cast<double>(0.3f)), "0.3");
+  EXPECT_EQ(option_toml(0.1), "0.1");
+  EXPECT_EQ(option_toml(2.0), "2");
+  const RunConfig defaults;
+  for (const OptionSpec& spec : run_options()) {
+    if (spec.kind != OptionKind::Number) continue;
+    const std::string text = "[" + std::string(spec.table) + "]\n" + spec.key + " = " +
+                             option_toml(spec.get(defaults)) + "\n";
+    RunConfig c;
+    ASSERT_FALSE(load_config_text(text, "f.toml", c).has_value()) << text;
+    EXPECT_EQ(spec.get(c), spec.get(defaults)) << text;
+  }
+}
+
 TEST(RunOptions, TargetAndIgtlLoadAndPrint) {
   RunConfig c;
   ASSERT_FALSE(
