@@ -9,9 +9,9 @@
 // between the result's label volume and the truth. "balloon Dice" rasterizes the balloon itself,
 // which tells whether accuracy is lost in the first step (balloon) or the second (opening +
 // reconstruction). Volume error compares the mesh's enclosed volume with the truth's voxels.
-// "wall_offset_vox" (JSON only): the result's vertices' mean signed distance from the truth's
-// wall (outside positive), and in a probe's sector apart for those facing the probe and those
-// whose wall runs along the beam (docs/stopping.md item 13).
+// "wall_offset_vox": the result's vertices' mean signed distance from the truth's wall (outside
+// positive), and in a probe's sector apart for those facing the probe and those whose wall runs
+// along the beam (docs/stopping.md item 13); --summarize gives the last two's means.
 #include <CLI/CLI.hpp>
 #include <algorithm>
 #include <cmath>
@@ -209,6 +209,22 @@ constexpr double kRightDice = 0.9;
 // failed case counts as 0), over the cases with a surface: mean MSD, worst HD95, |volume error|
 // median and worst; genus right and quality ok out of all cases, and the wrong results called ok
 // (genus wrong or Dice under kRightDice): the verdict's misses.
+// The rows' mean wall offsets "facing / along the beam" in voxels (wall_offsets), "-" without a
+// probe's sector.
+std::string mean_wall_offsets(const std::vector<json>& rows) {
+  double sum[2] = {0, 0};
+  int count = 0;
+  for (const json& r : rows) {
+    const json& w = r.value("wall_offset_vox", json(nullptr));
+    if (!w.is_object() || w["facing"].is_null() || w["along_beam"].is_null()) continue;
+    sum[0] += w["facing"].get<double>(), sum[1] += w["along_beam"].get<double>(), ++count;
+  }
+  if (count == 0) return "-";
+  char text[64];
+  std::snprintf(text, sizeof text, "%+.2f / %+.2f", sum[0] / count, sum[1] / count);
+  return text;
+}
+
 int summarize(const std::string& path) {
   std::ifstream in(path);
   if (!in) {
@@ -231,8 +247,8 @@ int summarize(const std::string& path) {
       "| realism | contrast | cases | failed | Dice median | Dice min | MSD mean (vox) | HD95 max "
       "(vox) "
       "| genus right | abs volume error median | abs volume error max | quality ok | wrong and ok "
-      "|\n");
-  std::printf("|---|---|---|---|---|---|---|---|---|---|---|---|---|\n");
+      "| wall offset facing / along the beam (vox) |\n");
+  std::printf("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n");
   for (const auto& [key, rows] : groups) {
     std::vector<double> dice, err, msd;
     double hd95 = 0;
@@ -256,11 +272,11 @@ int summarize(const std::string& path) {
     const double err_max = err.empty() ? std::nan("") : *std::max_element(err.begin(), err.end());
     std::printf(
         "| %s | %.2f | %zu | %d | %.3f | %.3f | %.2f | %.2f | %d/%zu | %.1f %% | %.1f %% | %d/%zu "
-        "| %d |\n",
+        "| %d | %s |\n",
         key.first.c_str(), key.second, rows.size(), failed, median(dice),
         *std::min_element(dice.begin(), dice.end()), msd.empty() ? std::nan("") : msd_mean, hd95,
         genus_right, rows.size(), 100.0 * median(err), 100.0 * err_max, quality_ok, rows.size(),
-        wrong_ok);
+        wrong_ok, mean_wall_offsets(rows).c_str());
   }
   return 0;
 }
