@@ -80,8 +80,7 @@ json wall_offsets(const sim::Phantom& phantom, const segment::Mesh& surface) {
     const double d = volume::sample_mm(sd, surface.vertices[v]);
     sum[0] += d, ++count[0];
     if (!apex) continue;
-    const volume::Vec3f beam = (surface.vertices[v] - *apex).normalized();
-    const int k = std::abs(beam.dot(normal[v])) > segment::kFacingProbeCos ? 1 : 2;
+    const int k = segment::faces_probe(surface.vertices[v], normal[v], *apex) ? 1 : 2;
     sum[k] += d, ++count[k];
   }
   const auto mean = [&](int k) { return count[k] ? json(sum[k] / count[k]) : json(nullptr); };

@@ -15,6 +15,7 @@
 /// axis of an anisotropic grid); positions are in mm; costs in grey levels of the smoothed image.
 
 #include <array>
+#include <cmath>
 #include <cstddef>
 #include <cstdint>
 #include <optional>
@@ -264,7 +265,7 @@ struct WallFitOptions {
   int rings = 3;           // the profiles are averaged over the vertex's neighbours this often
   float max_move_vox = 1.0f;
   float min_rise_fraction = 0.25f;  // of (tissue_level - seed_level): less is no wall
-  /// A probe's apex, where its sector gives one. A wall the beam runs along (kFacingProbeCos)
+  /// A probe's apex, where its sector gives one. A wall the beam runs along (not faces_probe)
   /// returns little echo of its own and the tissue beside it reads dark (dropout): the image
   /// rises from the wall but reaches half way only beyond it, so those vertices cross at
   /// `along_beam_fraction` of the way instead of half (docs/stopping.md item 13).
@@ -272,8 +273,11 @@ struct WallFitOptions {
   float along_beam_fraction = 0.45f;
 };
 
-/// A wall faces the probe where the beam meets it within 45° of square: |cos| above this.
-inline constexpr float kFacingProbeCos = 0.7f;
+/// Whether the wall at `p_mm` with unit normal `normal` faces the probe whose apex is `apex_mm`:
+/// the beam meets it within 45° of square (|cos| over 0.7).
+inline bool faces_probe(const Vec3f& p_mm, const Vec3f& normal, const Vec3f& apex_mm) {
+  return std::abs((p_mm - apex_mm).normalized().dot(normal)) > 0.7f;
+}
 
 /// Beyond the paper: each vertex of `surface` moves along its normal to where the image,
 /// averaged over the surface around it, crosses half way from its lowest level behind the vertex

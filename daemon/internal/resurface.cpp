@@ -36,10 +36,8 @@ constexpr int kUnsmoothedFitRings = 5;
 std::vector<char> facing_the_probe(const segment::Mesh& surface, const Vec3f& apex_mm) {
   const std::vector<Vec3f> normal = mesh::vertex_normals(surface);
   std::vector<char> facing(normal.size(), 0);
-  for (std::size_t v = 0; v < normal.size(); ++v) {
-    const Vec3f ray = (surface.vertices[v] - apex_mm).normalized();
-    facing[v] = std::abs(ray.dot(normal[v])) > segment::kFacingProbeCos ? 1 : 0;
-  }
+  for (std::size_t v = 0; v < normal.size(); ++v)
+    facing[v] = segment::faces_probe(surface.vertices[v], normal[v], apex_mm) ? 1 : 0;
   return facing;
 }
 

@@ -70,9 +70,7 @@ float crossing_offset(const float* profile, int width, float step, float min_ris
 // How far from the inside's level to the wall's vertex p with normal n crosses: half way, or
 // along a probe's beam less (WallFitOptions::probe_apex_mm).
 float crossing_fraction(const WallFitOptions& o, const Vec3f& p, const Vec3f& n) {
-  if (!o.probe_apex_mm) return 0.5f;
-  const Vec3f beam = (p - *o.probe_apex_mm).normalized();
-  return std::abs(beam.dot(n)) > kFacingProbeCos ? 0.5f : o.along_beam_fraction;
+  return !o.probe_apex_mm || faces_probe(p, n, *o.probe_apex_mm) ? 0.5f : o.along_beam_fraction;
 }
 
 // Each vertex's image along its normal, `width` samples `step_mm` apart centred on the vertex

@@ -112,11 +112,10 @@ TEST(WallFit, AlongTheBeamTheCrossingLiesLowerOnTheRise) {
   double along_in_vox = 0, facing_in_vox = 0;
   int along = 0, facing = 0;
   for (std::size_t v = 0; v < start.vertices.size(); ++v) {
-    const Vec3f ray = (start.vertices[v] - *beam.probe_apex_mm).normalized();
     const double in_vox =
         ((half.vertices[v] - t.centre_mm).norm() - (lower.vertices[v] - t.centre_mm).norm()) /
         t.vox_mm;
-    if (std::abs(ray.dot(normal[v])) > segment::kFacingProbeCos)
+    if (segment::faces_probe(start.vertices[v], normal[v], *beam.probe_apex_mm))
       facing_in_vox += in_vox, ++facing;
     else
       along_in_vox += in_vox, ++along;
