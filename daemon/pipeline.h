@@ -181,6 +181,8 @@ struct PipelineResult {
   /// it (1: none found) and how many voxels were lifted.
   float shadow_factor = 1.0f;
   std::size_t shadow_voxels = 0;
+  /// The ends of the needle that cast the shadow (ShadowGain::ends_mm), when one was found.
+  std::optional<std::array<Vec3f, 2>> needle_ends_mm;
   /// The result comes from the coarse retry (PipelineConfig::coarse_retry_grains).
   bool coarse_retry = false;
 

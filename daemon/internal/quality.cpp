@@ -16,6 +16,9 @@ using volume::Vec3i;
 // the texture around it (real echo at a one-voxel pre-filter: median 4.8 voxels from a start of
 // 2, 0.28 mL in a ~50 mL cavity); the simulator's targets at 64³ reach 10 voxels and more.
 constexpr float kStalledRadiusVox = 6.0f;
+// How far past a needle's end its line is followed: beyond the bright mask's end (its tip is
+// dimmer) and clear of the dent the surface makes round it.
+constexpr float kBeyondEndVox = 4.0f;
 // Fewer voxels than a ball of 6 voxels' radius: no target a clinician would seed in this volume.
 constexpr double kSmallestVoxels = 905.0;
 // Share of the final surface's vertices allowed on the volume's edge or the sector's before the
@@ -156,6 +159,21 @@ float open_patch(const volume::Volume& smoothed, const segment::Mesh& surface, f
   return total_mm2 > 0.0 ? static_cast<float>(largest_mm2 / total_mm2) : -1.0f;
 }
 
+// Whether the surface's handle cannot be the needle's tunnel: the needle ends inside the target
+// (its tip in the cavity, where the surface can only dent round it), so the line beyond one of
+// its ends runs into the surface's inside. Tested kBeyondEndVox past each end.
+bool needle_ends_inside(const PipelineResult& result, float vox_mm) {
+  if (result.topology.genus < 1 || !result.needle_ends_mm) return false;
+  const auto& ends = *result.needle_ends_mm;
+  for (int e = 0; e < 2; ++e) {
+    const Vec3f along = ends[e] - ends[1 - e];
+    if (!(along.norm() > 0.0f)) return false;
+    const Vec3f u = along.normalized();
+    if (mesh::encloses(result.mesh, ends[e] + (kBeyondEndVox * vox_mm) * u)) return true;
+  }
+  return false;
+}
+
 void balloon_reasons(const volume::Volume& input, const Vec3f& seed_mm,
                      const PipelineResult& result, std::vector<std::string>& why) {
   const float vox_mm = input.spacing_mm().minCoeff();
@@ -195,6 +213,8 @@ void quality_verdict(const volume::Volume& input, const volume::Volume& smoothed
       why.emplace_back("implausible genus");
     else if (result.tissue_columns_filled)
       why.emplace_back("tissue columns filled");
+    if (needle_ends_inside(result, input.spacing_mm().minCoeff()))
+      why.emplace_back("needle ends inside");
     result.wall_support = result.fitted_wall_support >= 0.0f
                               ? result.fitted_wall_support
                               : wall_support(smoothed, result.mesh, result.balloon_stats.seed_level,

@@ -377,6 +377,25 @@ std::vector<std::size_t> casters_in(const Beams& beams, float level, int threads
   return find_casters(beams, ones, threads, bright, ratios);
 }
 
+// The casters' ends along their principal line (the largest eigenvector of their scatter).
+std::array<Vec3f, 2> line_ends(const Beams& beams, const std::vector<std::size_t>& casters) {
+  Vec3f mean = Vec3f::Zero();
+  for (const std::size_t c : casters) mean += beams.at_mm(c);
+  mean /= static_cast<float>(casters.size());
+  Eigen::Matrix3f scatter = Eigen::Matrix3f::Zero();
+  for (const std::size_t c : casters) {
+    const Vec3f d = beams.at_mm(c) - mean;
+    scatter += d * d.transpose();
+  }
+  const Vec3f axis = Eigen::SelfAdjointEigenSolver<Eigen::Matrix3f>(scatter).eigenvectors().col(2);
+  float lo = 0.0f, hi = 0.0f;
+  for (const std::size_t c : casters) {
+    const float t = (beams.at_mm(c) - mean).dot(axis);
+    lo = std::min(lo, t), hi = std::max(hi, t);
+  }
+  return {Vec3f(mean + lo * axis), Vec3f(mean + hi * axis)};
+}
+
 IndexBox grown(const IndexBox& box, int by_vox) {
   return {box.lo - Vec3i::Constant(by_vox), box.hi + Vec3i::Constant(by_vox)};
 }
@@ -415,6 +434,7 @@ ShadowGain compensate_shadows(Volume& image, const std::vector<std::uint8_t>& no
   gain.casters = static_cast<int>(casters.size());
   gain.shadow_factor = std::max(0.1f, quantile(ratios, 0.5f));
   gain.casters_box = bounding_box(image.dims(), casters);
+  gain.ends_mm = line_ends(beams, casters);
   lift_shadow(beams, casters, 1.0f / gain.shadow_factor, threads, within, image, gain.voxels);
   return gain;
 }

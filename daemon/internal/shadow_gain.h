@@ -4,6 +4,7 @@
 /// needle's shadow"): the probe's apex from its sector, the thin bright reflectors that darken
 /// what lies beyond them along the beam, and a gain that lifts their shadows to the level beside.
 
+#include <array>
 #include <cstdint>
 #include <optional>
 #include <vector>
@@ -31,6 +32,9 @@ struct ShadowGain {
   std::optional<IndexBox> casters_box;  // the casters' bounding box, when there are casters
   float bright_level = 0.0f;            // the level a caster's 7-voxel cross lies over
   bool searched_near = false;           // the casters came from the search near `near` (see below)
+  // The casters' two ends along their principal line, mm (a needle's: where it enters the
+  // volume or the sector, and its tip), when there are casters.
+  std::optional<std::array<volume::Vec3f, 2>> ends_mm;
 };
 
 /// Lifts the acoustic shadows in `image` (Float32; the working image, the no-data region already

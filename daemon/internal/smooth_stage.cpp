@@ -119,6 +119,7 @@ const std::vector<std::uint8_t>& smooth_stage(const volume::Volume& input, const
                            near ? &*near : nullptr, lifted ? &*lifted : nullptr);
     result.shadow_factor = gain.shadow_factor;
     result.shadow_voxels = gain.voxels;
+    result.needle_ends_mm = gain.ends_mm;
     buffers.shadow_casters.reset();
     if (gain.casters_box)
       buffers.shadow_casters = std::pair(gain.casters_box->lo, gain.casters_box->hi);
@@ -171,6 +172,7 @@ void smooth_again(const volume::Volume& input, const PipelineResult& first, floa
   result.target = first.target;
   result.shadow_factor = first.shadow_factor;
   result.shadow_voxels = first.shadow_voxels;
+  result.needle_ends_mm = first.needle_ends_mm;
   volume::smooth_gaussian(rewritten(first, buffers) ? buffers.working : input, sigma_mm,
                           buffers.smoothed);
   result.timings.smooth_ms = ms_since(t);

@@ -170,6 +170,7 @@ PipelineResult carried(const PipelineResult& previous, const PipelineResult& smo
   r.smooth_sigma_mm = smoothed.smooth_sigma_mm;
   r.shadow_factor = smoothed.shadow_factor;
   r.shadow_voxels = smoothed.shadow_voxels;
+  r.needle_ends_mm = smoothed.needle_ends_mm;
   r.timings = StageTimings{.smooth_ms = smoothed.timings.smooth_ms};
   r.balloon_iterations = 0;
   r.fitted_wall_support = -1.0f;  // (the verdict measures this volume's surface)
