@@ -200,12 +200,13 @@ Vec3i smoothing_reach_vox(const Volume& like, float sigma_mm);
 
 /// The speckle's grain around a point, in mm: per grid axis, the lag at which the normalised
 /// autocorrelation of the raw intensities in a cube of `radius_vox` voxels around `centre_mm`
-/// falls to one half (linear between integer lags), the largest over the axes; an axis still
-/// correlated above 0.25 at three voxels holds structure, not grain, and is left out. A smoothing
-/// of this sigma averages a grain away; one of a voxel leaves a coarse grain as blobs that stop a
-/// balloon. 0 if the cube holds no variation (a noise-free image); capped at `radius_vox` voxels.
-/// With `excluded`, the voxels (indices) it is true of are not speckle (a needle) and take no
-/// part; it is asked only of the cube's voxels.
+/// falls to one half (linear between integer lags), the largest over the axes. An axis still
+/// correlated above 0.25 at three voxels holds structure, not grain (a thin target's walls): it
+/// is read in the six cubes beside that one (2 radii off along each axis), the median of those
+/// that read it, or else left out. A smoothing of this sigma averages a grain away; one of a
+/// voxel leaves a coarse grain as blobs that stop a balloon. 0 if the cube holds no variation (a
+/// noise-free image); capped at `radius_vox` voxels. With `excluded`, the voxels (indices) it is
+/// true of are not speckle (a needle) and take no part; it is asked only of the cubes' voxels.
 float speckle_grain_mm(const Volume& input, const Vec3f& centre_mm, int radius_vox = 6,
                        const std::function<bool(const Vec3i&)>& excluded = {});
 

@@ -19,6 +19,9 @@ constexpr float kStalledRadiusVox = 6.0f;
 // How far past a needle's end its line is followed: beyond the bright mask's end (its tip is
 // dimmer) and clear of the dent the surface makes round it.
 constexpr float kBeyondEndVox = 4.0f;
+// A surface thinner (3V/A) than this many speckle grains (the pre-filter's sigma): the grains
+// are as large as a quarter of the target, and the wall test takes them for its walls.
+constexpr double kLeastGrainsThick = 4.25;
 // Fewer voxels than a ball of 6 voxels' radius: no target a clinician would seed in this volume.
 constexpr double kSmallestVoxels = 905.0;
 // Share of the final surface's vertices allowed on the volume's edge or the sector's before the
@@ -174,6 +177,16 @@ bool needle_ends_inside(const PipelineResult& result, float vox_mm) {
   return false;
 }
 
+// Whether the surface is thin for the speckle's grain (kLeastGrainsThick): the grain the
+// pre-filter took, its sigma (a grain read longer than 3 voxels is anatomy, not speckle, and
+// the pre-filter keeps one voxel: the coarse Philips volume).
+bool thin_for_grain(const PipelineResult& result) {
+  const double area_mm2 = mesh::surface_area_mm2(result.mesh);
+  if (!(result.smooth_sigma_mm > 0.0f) || !(area_mm2 > 0.0)) return false;
+  const double thickness_mm = 3.0 * result.enclosed_volume_ml * 1e3 / area_mm2;
+  return thickness_mm < kLeastGrainsThick * result.smooth_sigma_mm;
+}
+
 void balloon_reasons(const volume::Volume& input, const Vec3f& seed_mm,
                      const PipelineResult& result, std::vector<std::string>& why) {
   const float vox_mm = input.spacing_mm().minCoeff();
@@ -215,6 +228,7 @@ void quality_verdict(const volume::Volume& input, const volume::Volume& smoothed
       why.emplace_back("tissue columns filled");
     if (needle_ends_inside(result, input.spacing_mm().minCoeff()))
       why.emplace_back("needle ends inside");
+    if (thin_for_grain(result)) why.emplace_back("thin for the speckle grain");
     result.wall_support = result.fitted_wall_support >= 0.0f
                               ? result.fitted_wall_support
                               : wall_support(smoothed, result.mesh, result.balloon_stats.seed_level,

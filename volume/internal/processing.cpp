@@ -1,5 +1,6 @@
 // Gradients, the speckle grain and trilinear sampling (smoothing.cpp smooths).
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <opencv2/core.hpp>
 #include <optional>
@@ -191,10 +192,12 @@ float half_lag_vox(const GrainCube& c, int axis, int radius_vox, double mean, do
 
 }  // namespace
 
-float speckle_grain_mm(const Volume& input, const Vec3f& centre_mm, int radius_vox,
-                       const std::function<bool(const Vec3i&)>& excluded) {
-  if (input.empty() || radius_vox < 1) return 0.0f;
-  const Vec3i c = input.mm_to_index(centre_mm).array().round().cast<int>();
+namespace {
+
+// Per grid axis, the half lag (voxels) in the cube of `radius_vox` round voxel `c`: 0 where the
+// axis holds structure. Empty when the cube has too few voxels or no variation.
+std::optional<Vec3f> half_lags_vox(const Volume& input, const Vec3i& c, int radius_vox,
+                                   const std::function<bool(const Vec3i&)>& excluded) {
   const GrainCube cube{input, (c.array() - radius_vox).max(0),
                        (c.array() + radius_vox).min(input.dims().array() - 1), excluded};
   double sum = 0.0, sum2 = 0.0;
@@ -208,14 +211,54 @@ float speckle_grain_mm(const Volume& input, const Vec3f& centre_mm, int radius_v
         sum2 += v * v;
         ++n;
       }
-  if (n < 8) return 0.0f;
+  if (n < 8) return std::nullopt;
   const double mean = sum / static_cast<double>(n);
   const double variance = sum2 / static_cast<double>(n) - mean * mean;
-  if (!(variance > 1e-9 * (1.0 + mean * mean))) return 0.0f;
+  if (!(variance > 1e-9 * (1.0 + mean * mean))) return std::nullopt;
+  Vec3f lags;
+  for (int axis = 0; axis < 3; ++axis)
+    lags[axis] = half_lag_vox(cube, axis, radius_vox, mean, variance);
+  return lags;
+}
+
+// The axes `grain_vox` left out (0: structure in the seed's cube), read in the six cubes beside
+// it, 2 radii off along each axis: the median of those that read the axis.
+void read_beside(const Volume& input, const Vec3i& c, int radius_vox,
+                 const std::function<bool(const Vec3i&)>& excluded, Vec3f& grain_vox) {
+  std::array<std::vector<float>, 3> beside;
+  for (int axis = 0; axis < 3; ++axis)
+    for (const int side : {-1, 1}) {
+      Vec3i at = c;
+      at[axis] += side * 2 * radius_vox;
+      if (!input.contains_index(at)) continue;
+      if (const std::optional<Vec3f> other = half_lags_vox(input, at, radius_vox, excluded))
+        for (int a = 0; a < 3; ++a)
+          if ((*other)[a] > 0.0f) beside[a].push_back((*other)[a]);
+    }
+  for (int axis = 0; axis < 3; ++axis) {
+    std::vector<float>& v = beside[axis];
+    if (grain_vox[axis] > 0.0f || v.empty()) continue;
+    std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2), v.end());
+    grain_vox[axis] = v[v.size() / 2];
+  }
+}
+
+}  // namespace
+
+float speckle_grain_mm(const Volume& input, const Vec3f& centre_mm, int radius_vox,
+                       const std::function<bool(const Vec3i&)>& excluded) {
+  if (input.empty() || radius_vox < 1) return 0.0f;
+  const Vec3i c = input.mm_to_index(centre_mm).array().round().cast<int>();
+  const std::optional<Vec3f> lags = half_lags_vox(input, c, radius_vox, excluded);
+  if (!lags) return 0.0f;
+  Vec3f grain_vox = *lags;
+  // An axis along which the seed's cube holds structure (a thin target's walls) is read beside
+  // it: along the beam the grain is finer than across it, and that axis alone would set a
+  // pre-filter too fine for the lateral grain.
+  if ((grain_vox.array() == 0.0f).any()) read_beside(input, c, radius_vox, excluded, grain_vox);
   float grain_mm = 0.0f;
   for (int axis = 0; axis < 3; ++axis)
-    grain_mm = std::max(
-        grain_mm, half_lag_vox(cube, axis, radius_vox, mean, variance) * input.spacing_mm()[axis]);
+    grain_mm = std::max(grain_mm, grain_vox[axis] * input.spacing_mm()[axis]);
   return grain_mm;
 }
 
