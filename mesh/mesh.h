@@ -71,6 +71,8 @@ int euler_characteristic(const Mesh& mesh);
 double enclosed_volume_ml(const Mesh& mesh);
 /// The sum of the triangles' areas (mm²).
 double surface_area_mm2(const Mesh& mesh);
+/// A closed mesh's thickness 3V/A (mm): a ball's radius, 1.5 times a tube's; 0 without area.
+double thickness_mm(const Mesh& closed_mesh);
 
 /// The axis-aligned box of a mesh's vertices (mm); lo = hi = 0 for a mesh without vertices.
 struct Box {

@@ -83,9 +83,7 @@ reconstruct::PoissonOptions poisson_options(const PipelineConfig& config,
 
 float thick_cell_scale(const segment::Mesh& surface, float vox_mm) {
   constexpr float kThickVox = 12.0f, kCoarsestCell = 1.5f;
-  const double area_mm2 = mesh::surface_area_mm2(surface);
-  if (!(area_mm2 > 0.0)) return 1.0f;
-  const double thickness_vox = 3e3 * mesh::enclosed_volume_ml(surface) / area_mm2 / vox_mm;
+  const double thickness_vox = mesh::thickness_mm(surface) / vox_mm;
   return std::clamp(static_cast<float>(thickness_vox) / kThickVox, 1.0f, kCoarsestCell);
 }
 

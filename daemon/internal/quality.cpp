@@ -181,10 +181,9 @@ bool needle_ends_inside(const PipelineResult& result, float vox_mm) {
 // pre-filter took, its sigma (a grain read longer than 3 voxels is anatomy, not speckle, and
 // the pre-filter keeps one voxel: the coarse Philips volume).
 bool thin_for_grain(const PipelineResult& result) {
-  const double area_mm2 = mesh::surface_area_mm2(result.mesh);
-  if (!(result.smooth_sigma_mm > 0.0f) || !(area_mm2 > 0.0)) return false;
-  const double thickness_mm = 3.0 * result.enclosed_volume_ml * 1e3 / area_mm2;
-  return thickness_mm < kLeastGrainsThick * result.smooth_sigma_mm;
+  const double thickness_mm = mesh::thickness_mm(result.mesh);
+  return result.smooth_sigma_mm > 0.0f && thickness_mm > 0.0 &&
+         thickness_mm < kLeastGrainsThick * result.smooth_sigma_mm;
 }
 
 void balloon_reasons(const volume::Volume& input, const Vec3f& seed_mm,

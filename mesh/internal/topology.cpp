@@ -204,6 +204,11 @@ double surface_area_mm2(const Mesh& mesh) {
   return area;
 }
 
+double thickness_mm(const Mesh& closed_mesh) {
+  const double area_mm2 = surface_area_mm2(closed_mesh);
+  return area_mm2 > 0.0 ? 3e3 * enclosed_volume_ml(closed_mesh) / area_mm2 : 0.0;
+}
+
 Box bounding_box(const Mesh& mesh) {
   if (mesh.vertices.empty()) return {};
   Box box{mesh.vertices.front(), mesh.vertices.front()};

@@ -25,6 +25,11 @@ TEST(Topology, VolumeOfAFineSphereMatchesAnalytic) {
   EXPECT_NEAR(t.volume_ml, analytic, 0.01 * analytic);
 }
 
+TEST(Topology, ThicknessOfASphereIsItsRadius) {
+  EXPECT_NEAR(mesh::thickness_mm(test::uv_sphere(Vec3f(5, 6, 7), 10.0f, 128, 64)), 10.0, 0.1);
+  EXPECT_EQ(mesh::thickness_mm(Mesh{}), 0.0);
+}
+
 TEST(Topology, TorusGridHasGenusOne) {
   const int nu = 24, nv = 12;
   Mesh m;

@@ -190,10 +190,6 @@ float half_lag_vox(const GrainCube& c, int axis, int radius_vox, double mean, do
   return lag_half;
 }
 
-}  // namespace
-
-namespace {
-
 // Per grid axis, the half lag (voxels) in the cube of `radius_vox` round voxel `c`: 0 where the
 // axis holds structure. Empty when the cube has too few voxels or no variation.
 std::optional<Vec3f> half_lags_vox(const Volume& input, const Vec3i& c, int radius_vox,
