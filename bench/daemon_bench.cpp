@@ -11,8 +11,8 @@
 // truth at its volume's time (mean, min, and mean per start: tracked, warm, cold).
 //
 //   daemon_bench [--size N] [--rate HZ] [--count N] [--phantom NAME] [--realism simple|echo]
-//                [--contrast C] [--sonomeshd PATH] [--probe-sim PATH] [--work DIR]
-//                [--json FILE] [--config TOML]
+//                [--contrast C] [--needle-reach R] [--sonomeshd PATH] [--probe-sim PATH]
+//                [--work DIR] [--json FILE] [--config TOML]
 #include <fcntl.h>
 #include <signal.h>
 #include <spawn.h>
@@ -53,6 +53,7 @@ struct Args {
   std::string phantom = "cyst-needle";
   std::string realism = "simple";  // echo: sim::with_echo_realism (a sector, speckle, dropout)
   float contrast = -1.0f;          // < 0: the phantom's own
+  float needle_reach = 1.0f;       // cyst-needle: 1 through the cyst, 0 its tip in the middle
   std::string sonomeshd = SONOMESHD_EXE;
   std::string probe_sim = PROBE_SIM_EXE;
   std::string work = "/tmp/sonomesh_daemon_bench";
@@ -97,6 +98,8 @@ bool parse_args(int argc, char** argv, Args& a) {
       a.realism = v;
     else if (k == "--contrast")
       a.contrast = std::stof(v);
+    else if (k == "--needle-reach")
+      a.needle_reach = std::stof(v);
     else if (k == "--sonomeshd")
       a.sonomeshd = v;
     else if (k == "--probe-sim")
@@ -306,6 +309,7 @@ int main(int argc, char** argv) {
   options.spec.size_vox = a.size;
   if (a.realism == "echo") options.spec = sonomesh::sim::with_echo_realism(options.spec);
   if (a.contrast >= 0.0f) options.spec.contrast = a.contrast;
+  options.spec.needle_reach = a.needle_reach;
   options.rate_hz = a.rate;
   const fs::path recording = work / "stream.usv";
   if (!write_recording(a, options, recording)) return 1;

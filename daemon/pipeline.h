@@ -230,6 +230,9 @@ struct PipelineResult {
   bool dark_tunnels_closed = false;
   /// More handles than a target has: the tunnels round columns of tissue were filled too.
   bool tissue_columns_filled = false;
+  /// A handle round no needle (the needle's tip lies inside the surface) was filled as a column
+  /// of tissue's would be.
+  bool needle_dent_filled = false;
   /// The final surface is the wall-fitted one made again from its samples
   /// (PipelineConfig::resurface).
   bool resurfaced = false;

@@ -27,6 +27,15 @@ void close_false_tunnels(const volume::Volume& smoothed, const Vec3f& seed_mm, i
   }
   const bool closed = reconstruct::close_dark_tunnels(surface, seed_mm, smoothed, levels, threads);
   (implausible ? result.tissue_columns_filled : result.dark_tunnels_closed) = closed;
+  // A needle whose tip lies in the cavity makes a dent, not a tunnel: a handle it cannot explain
+  // is filled as a column's would be (its own echo, brighter than that, keeps the dent).
+  if (implausible || surface.topology.genus < 1 || !result.needle_ends_mm ||
+      !needle_ends_inside(surface.mesh, *result.needle_ends_mm, smoothed.spacing_mm().minCoeff()))
+    return;
+  const reconstruct::TunnelLevels columns{stats.tissue_level + 0.5f * contrast, stats.seed_level,
+                                          std::nullopt};
+  result.needle_dent_filled =
+      reconstruct::close_dark_tunnels(surface, seed_mm, smoothed, columns, threads);
 }
 
 }  // namespace sonomesh::daemon::internal

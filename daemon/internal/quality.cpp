@@ -162,17 +162,13 @@ float open_patch(const volume::Volume& smoothed, const segment::Mesh& surface, f
   return total_mm2 > 0.0 ? static_cast<float>(largest_mm2 / total_mm2) : -1.0f;
 }
 
-// Whether the surface's handle cannot be the needle's tunnel: the needle ends inside the target
-// (its tip in the cavity, where the surface can only dent round it), so the line beyond one of
-// its ends runs into the surface's inside. Tested kBeyondEndVox past each end.
-bool needle_ends_inside(const PipelineResult& result, float vox_mm) {
-  if (result.topology.genus < 1 || !result.needle_ends_mm) return false;
-  const auto& ends = *result.needle_ends_mm;
+bool needle_ends_inside(const segment::Mesh& surface, const std::array<Vec3f, 2>& ends,
+                        float vox_mm) {
   for (int e = 0; e < 2; ++e) {
     const Vec3f along = ends[e] - ends[1 - e];
     if (!(along.norm() > 0.0f)) return false;
     const Vec3f u = along.normalized();
-    if (mesh::encloses(result.mesh, ends[e] + (kBeyondEndVox * vox_mm) * u)) return true;
+    if (mesh::encloses(surface, ends[e] + (kBeyondEndVox * vox_mm) * u)) return true;
   }
   return false;
 }
@@ -225,8 +221,12 @@ void quality_verdict(const volume::Volume& input, const volume::Volume& smoothed
       why.emplace_back("implausible genus");
     else if (result.tissue_columns_filled)
       why.emplace_back("tissue columns filled");
-    if (needle_ends_inside(result, input.spacing_mm().minCoeff()))
-      why.emplace_back("needle ends inside");
+    // The needle's tip lies in the cavity: a handle is not its tunnel, and its walls inside the
+    // surface make the dent it is.
+    const bool tip_inside =
+        result.needle_ends_mm &&
+        needle_ends_inside(result.mesh, *result.needle_ends_mm, input.spacing_mm().minCoeff());
+    if (tip_inside && result.topology.genus >= 1) why.emplace_back("needle ends inside");
     if (thin_for_grain(result)) why.emplace_back("thin for the speckle grain");
     result.wall_support = result.fitted_wall_support >= 0.0f
                               ? result.fitted_wall_support
@@ -236,7 +236,7 @@ void quality_verdict(const volume::Volume& input, const volume::Volume& smoothed
       why.emplace_back("surface not on the target's wall");
     // A bright structure across the target whose walls opened no tunnel: a needle's handle is
     // missing, or the surface stopped at clutter across the cavity.
-    if (result.bright_inside_left) why.emplace_back("bright structure inside");
+    if (result.bright_inside_left && !tip_inside) why.emplace_back("bright structure inside");
     // A dark target's image is the echo's amplitude, whose zero is no echo (a bright target's
     // working image is inverted about its maximum: its levels have no such zero).
     if (result.target == TargetPolarity::Dark && segment::low_contrast(result.balloon_stats))

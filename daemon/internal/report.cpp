@@ -94,6 +94,7 @@ nlohmann::json report_json(const PipelineResult& result, const std::string& inpu
                               {"cell_mm", result.grid_cell_mm}};
   if (result.dark_tunnels_closed) report["reconstruction"]["dark_tunnels_closed"] = true;
   if (result.tissue_columns_filled) report["reconstruction"]["tissue_columns_filled"] = true;
+  if (result.needle_dent_filled) report["reconstruction"]["needle_dent_filled"] = true;
   report["reconstruction"]["resurfaced"] = result.resurfaced;
   if (result.bright_inside_opened) report["reconstruction"]["bright_inside_opened"] = true;
   // JSON has no infinity: the narrowest feature only when one was thin enough to matter.

@@ -4,6 +4,7 @@
 /// target inverted into a dark one, and a probe's no-data region (zeros outside the sector) kept
 /// from acting as a darker target; plus the quality verdict on the result.
 
+#include <array>
 #include <cstdint>
 #include <string>
 #include <vector>
@@ -66,6 +67,12 @@ float open_patch(const volume::Volume& smoothed, const segment::Mesh& surface, f
 /// More handles than a target a clinician seeds has (a cyst none, a needle through it one, two
 /// needles two): the balloon wrapped round columns of tissue or clutter inside a cavity.
 constexpr int kMostHandles = 2;
+
+/// Whether the needle's line (its two ends, mm) runs into the inside of the closed `surface` 4
+/// voxels past either end: the needle ends inside the target, where the surface can only dent
+/// round it, so no handle of the surface is the needle's tunnel.
+bool needle_ends_inside(const segment::Mesh& surface, const std::array<Vec3f, 2>& ends,
+                        float vox_mm);
 
 /// Fills result.quality_ok / quality_reasons (DESIGN.md "the quality verdict") from the balloon and
 /// the final surface: stalled near the seed, implausibly small, touching the volume's edge or the

@@ -177,7 +177,8 @@ PipelineResult carried(const PipelineResult& previous, const PipelineResult& smo
   r.second_opinion = r.unconfirmed = false;
   r.coarse_start = {};
   // (no reconstruction on this volume)
-  r.dark_tunnels_closed = r.tissue_columns_filled = r.bright_inside_opened = r.resurfaced = false;
+  r.dark_tunnels_closed = r.tissue_columns_filled = r.needle_dent_filled = false;
+  r.bright_inside_opened = r.resurfaced = false;
   r.bright_inside_left = false;
   r.warm_start = true;
   r.start_reason = "previous surface";
