@@ -1,5 +1,6 @@
 // accuracy_report: one phantom through the pipeline, compared with its ground truth.
-//   accuracy_report --phantom NAME [--size N] [--speckle S] [--contrast C] [--seed N] [--repeat N]
+//   accuracy_report --phantom NAME [--size N] [--spacing MM] [--speckle S] [--contrast C]
+//                   [--seed N] [--time S] [--needle-reach R] [--repeat N]
 //                   [--realism simple|echo] [--format md|json] [--jsonl ROWS.jsonl]
 //   accuracy_report --header
 //   accuracy_report --summarize ROWS.jsonl
@@ -114,6 +115,8 @@ json measure(const sim::PhantomSpec& spec, const daemon::RunConfig& config, int 
               {"size", spec.size_vox},
               {"seed", spec.seed},
               {"time_s", spec.time_s},
+              {"needle_reach", spec.needle_reach},
+              {"spacing_mm", spec.spacing_mm.x()},
               {"seed_offset", {seed_offset.x(), seed_offset.y(), seed_offset.z()}},
               {"speckle", spec.speckle},
               {"contrast", spec.contrast},
@@ -175,6 +178,11 @@ std::string stop_rule(const json& r) {
 
 void print_row(const json& r) {
   std::string name = r["phantom"].get<std::string>();
+  if (r.value("needle_reach", 1.0) != 1.0 && name == "cyst-needle") {
+    char reach[32];
+    std::snprintf(reach, sizeof reach, " reach %.1f", r["needle_reach"].get<double>());
+    name += reach;
+  }
   if (r["realism"] != "simple") name += " (" + r["realism"].get<std::string>() + ")";
   const std::string quality =
       r["quality"] == "ok"
@@ -296,6 +304,12 @@ int main(int argc, char** argv) {
   app.add_option("--contrast", spec.contrast, "Target contrast (0..1)");
   app.add_option("--seed", spec.seed, "Random seed");
   app.add_option("--time", spec.time_s, "Breathing phase (s)");
+  app.add_option("--needle-reach", spec.needle_reach,
+                 "Cyst-needle: 1 through the cyst, 0 its tip in the middle")
+      ->check(CLI::Range(-1.0f, 1.0f));
+  float spacing_mm = 0.0f;
+  app.add_option("--spacing", spacing_mm, "Voxel spacing in mm (default: the phantom's)")
+      ->check(CLI::PositiveNumber);
   std::vector<float> offset{0.0f, 0.0f, 0.0f};
   app.add_option("--seed-offset", offset,
                  "X Y Z: the seed moved by this much of the target's equivalent radius")
@@ -332,6 +346,7 @@ int main(int argc, char** argv) {
         return 2;
       }
     }
+    if (spacing_mm > 0.0f) spec.spacing_mm = volume::Vec3f::Constant(spacing_mm);
     if (realism == "echo") {  // the preset's speckle and attenuation, unless --speckle is given
       const float given = spec.speckle;
       spec = sim::with_echo_realism(spec);
