@@ -16,9 +16,10 @@ using volume::Vec3i;
 // the texture around it (real echo at a one-voxel pre-filter: median 4.8 voxels from a start of
 // 2, 0.28 mL in a ~50 mL cavity); the simulator's targets at 64³ reach 10 voxels and more.
 constexpr float kStalledRadiusVox = 6.0f;
-// How far past a needle's end its line is followed: beyond the bright mask's end (its tip is
-// dimmer) and clear of the dent the surface makes round it.
-constexpr float kBeyondEndVox = 4.0f;
+// How far past a needle's end its line is followed, voxel by voxel: from beyond the bright mask's
+// end (its tip is dimmer) and clear of the dent the surface makes round it, to where a dent
+// drawn on past the tip by the balloon's seam (7 voxels on a 96³ echo cyst-needle) ends.
+constexpr int kBeyondEndFromVox = 4, kBeyondEndToVox = 8;
 // A surface thinner (3V/A) than this many speckle grains (the pre-filter's sigma): the grains
 // are as large as a quarter of the target, and the wall test takes them for its walls.
 constexpr double kLeastGrainsThick = 4.25;
@@ -168,7 +169,8 @@ bool needle_ends_inside(const segment::Mesh& surface, const std::array<Vec3f, 2>
     const Vec3f along = ends[e] - ends[1 - e];
     if (!(along.norm() > 0.0f)) return false;
     const Vec3f u = along.normalized();
-    if (mesh::encloses(surface, ends[e] + (kBeyondEndVox * vox_mm) * u)) return true;
+    for (int k = kBeyondEndFromVox; k <= kBeyondEndToVox; ++k)
+      if (mesh::encloses(surface, ends[e] + (static_cast<float>(k) * vox_mm) * u)) return true;
   }
   return false;
 }

@@ -68,7 +68,7 @@ float open_patch(const volume::Volume& smoothed, const segment::Mesh& surface, f
 /// needles two): the balloon wrapped round columns of tissue or clutter inside a cavity.
 constexpr int kMostHandles = 2;
 
-/// Whether the needle's line (its two ends, mm) runs into the inside of the closed `surface` 4
+/// Whether the needle's line (its two ends, mm) runs into the inside of the closed `surface` 4-8
 /// voxels past either end: the needle ends inside the target, where the surface can only dent
 /// round it, so no handle of the surface is the needle's tunnel.
 bool needle_ends_inside(const segment::Mesh& surface, const std::array<Vec3f, 2>& ends,

@@ -71,6 +71,22 @@ TEST(NeedleEnds, ANeedleEndingInsideMakesADentCalledOk) {
   EXPECT_GE(dented, 9);
 }
 
+// The 0.5 mm one of seed 2 at 2.4 s: the balloon's seam drew the dent 7 voxels on past the tip
+// and a handle formed beyond it, which the line 4 voxels past the tip does not reach (genus 1,
+// called ok, when only that point was tested).
+TEST(NeedleEnds, AHandleBeyondASeamPastTheTipIsNeverOk) {
+  sim::PhantomSpec spec{.phantom = "cyst-needle", .size_vox = 96, .seed = 2};
+  spec.contrast = 0.5f;
+  spec.time_s = 2.4f;
+  spec.needle_reach = 0.0f;
+  const sim::Phantom phantom = sim::make_phantom(sim::with_echo_realism(spec));
+  const PipelineResult result = run_pipeline(phantom.image, phantom.seed_mm, {});
+  ASSERT_TRUE(result.ok) << result.error;
+  if (result.topology.genus == 0) return;
+  EXPECT_TRUE(flagged(result)) << "genus " << result.topology.genus;
+  EXPECT_FALSE(result.quality_ok);
+}
+
 TEST(NeedleEnds, ANeedleThroughTheTargetIsNotFlagged) {
   const sim::Phantom phantom = cyst_needle(1.0f);
   ASSERT_EQ(phantom.genus, 1);
