@@ -82,38 +82,56 @@ double quantile(std::vector<double> v, double q) {
   return v[i];
 }
 
-// The command line into `a`; false (after one line on stderr) for an unknown option.
+// One option and its value into `a`; false for an unknown option. Throws std::invalid_argument
+// or std::out_of_range for a value that is not a number.
+bool parse_option(const std::string& k, const std::string& v, Args& a) {
+  if (k == "--size")
+    a.size = std::stoi(v);
+  else if (k == "--rate")
+    a.rate = std::stod(v);
+  else if (k == "--count")
+    a.count = std::stoi(v);
+  else if (k == "--phantom")
+    a.phantom = v;
+  else if (k == "--realism" && (v == "simple" || v == "echo"))
+    a.realism = v;
+  else if (k == "--contrast")
+    a.contrast = std::stof(v);
+  else if (k == "--needle-reach")
+    a.needle_reach = std::stof(v);
+  else if (k == "--sonomeshd")
+    a.sonomeshd = v;
+  else if (k == "--probe-sim")
+    a.probe_sim = v;
+  else if (k == "--work")
+    a.work = v;
+  else if (k == "--json")
+    a.json_out = v;
+  else if (k == "--config")
+    a.config = v;
+  else
+    return false;
+  return true;
+}
+
+// The command line into `a`; false (after one line on stderr) for an unknown option or a value
+// out of range.
 bool parse_args(int argc, char** argv, Args& a) {
   for (int i = 1; i + 1 < argc; i += 2) {
     const std::string k = argv[i], v = argv[i + 1];
-    if (k == "--size")
-      a.size = std::stoi(v);
-    else if (k == "--rate")
-      a.rate = std::stod(v);
-    else if (k == "--count")
-      a.count = std::stoi(v);
-    else if (k == "--phantom")
-      a.phantom = v;
-    else if (k == "--realism" && (v == "simple" || v == "echo"))
-      a.realism = v;
-    else if (k == "--contrast")
-      a.contrast = std::stof(v);
-    else if (k == "--needle-reach")
-      a.needle_reach = std::stof(v);
-    else if (k == "--sonomeshd")
-      a.sonomeshd = v;
-    else if (k == "--probe-sim")
-      a.probe_sim = v;
-    else if (k == "--work")
-      a.work = v;
-    else if (k == "--json")
-      a.json_out = v;
-    else if (k == "--config")
-      a.config = v;
-    else {
-      std::fprintf(stderr, "daemon_bench: unknown option %s\n", k.c_str());
+    try {
+      if (!parse_option(k, v, a)) {
+        std::fprintf(stderr, "daemon_bench: unknown option %s\n", k.c_str());
+        return false;
+      }
+    } catch (const std::exception&) {
+      std::fprintf(stderr, "daemon_bench: %s expects a number, got '%s'\n", k.c_str(), v.c_str());
       return false;
     }
+  }
+  if (!(a.needle_reach >= -1.0f && a.needle_reach <= 1.0f)) {
+    std::fprintf(stderr, "daemon_bench: --needle-reach must lie in [-1, 1]\n");
+    return false;
   }
   return true;
 }
