@@ -51,7 +51,9 @@ SeedChoice choose_seed(const std::vector<SeedCandidate>& candidates, const SeedC
 StartDecision decide_start(const StartInputs& in, const StartLimits& limits) {
   auto cold = [](std::string why) { return StartDecision{false, std::move(why)}; };
   if (in.seed_overridden) return cold("seed override");
-  if (!in.have_previous) return cold("no previous balloon");
+  if (!in.have_previous)
+    return cold(in.previous_dropped.empty() ? "no previous balloon"
+                                            : "no previous balloon (" + in.previous_dropped + ")");
   if (!in.previous_quality_ok) return cold("previous result suspect");
   if (!in.seed_tracked) return cold("seed not tracked");
   if (!in.same_grid) return cold("grid changed");

@@ -68,6 +68,7 @@ struct StartInputs {
   float motion_vox = 0.0f;           // how far the result's centroid moved between the last two
   float volume_change = 0.0f;        // |ΔV| / V of the enclosed volume between the last two
   int since_refused = 1 << 30;       // volumes since the pipeline's check last refused a warm start
+  std::string previous_dropped = {};  // why the last balloon kept was dropped (empty: none was)
 };
 
 /// Beyond these the previous balloon says too little about the new volume.

@@ -124,6 +124,7 @@ void Worker::fail(const QueuedVolume& item, const std::string& reason, nlohmann:
     std::lock_guard lock(state_mutex_);
     if (!state_sequence_ || seq >= *state_sequence_) {
       previous_.reset();  // the next volume starts cold
+      previous_dropped_ = "sequence " + std::to_string(seq) + " failed";
       state_sequence_ = seq;
     }
   }
@@ -308,6 +309,8 @@ void Worker::refresh_anchor(std::uint64_t sequence, const volume::Volume& input,
   ++anchor_;
   if (const std::string why = internal::unfit_anchor(fresh, tracked_genus); !why.empty()) {
     previous_.reset();
+    previous_dropped_ =
+        "the balloon's refresh on sequence " + std::to_string(sequence) + " was " + why;
     spdlog::warn("sequence {}: the balloon's refresh was {}; the next volume starts cold", sequence,
                  why);
     return;
@@ -388,6 +391,7 @@ StartDecision Worker::choose_start(const volume::Volume& input, const SeedCandid
     in.volume_change = previous_->volume_change;
   }
   in.since_refused = since_refused_;
+  in.previous_dropped = previous_dropped_;
   return decide_start(in);
 }
 
@@ -416,6 +420,7 @@ void Worker::keep_for_warm_start(const volume::Volume& input, const PipelineResu
   last_volume_ml_ = next.volume_ml;
   next.warm = warm_start_from(result, 0.0f);
   previous_ = std::move(next);
+  previous_dropped_.clear();
 }
 
 }  // namespace sonomesh::daemon

@@ -93,7 +93,8 @@ class Worker {
   std::optional<std::uint64_t> state_sequence_;  // of the newest volume that set it
   SeedPolicy seeds_;                             // the worker's own
   std::optional<Previous> previous_;
-  bool seed_overridden_ = false;           // the last pick_seed used an override
+  std::string previous_dropped_;  // why previous_ was last reset (the next cold start says it)
+  bool seed_overridden_ = false;  // the last pick_seed used an override
   std::optional<Vec3f> last_centroid_mm_;  // of the last result (its motion, for the next)
   double last_volume_ml_ = 0.0;
   int since_refused_ = 1 << 30;    // volumes since the pipeline last refused a warm start

@@ -149,9 +149,10 @@ void follow_needle_switch(std::optional<float> before, std::optional<float> afte
     EXPECT_EQ(r.topology.genus, p.genus)
         << "volume " << i << (r.warm_start ? " (warm)" : " (cold: " + r.start_reason + ")");
     EXPECT_GE(internal::dice(*r.labels, p.truth), echo ? 0.93 : 0.95) << "volume " << i;
-    if (echo)
+    if (echo) {
       EXPECT_TRUE(r.quality_ok) << "volume " << i << ": "
                                 << (r.quality_reasons.empty() ? "" : r.quality_reasons.front());
+    }
   }
 }
 

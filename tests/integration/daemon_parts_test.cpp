@@ -302,6 +302,11 @@ TEST(SeedPolicy, DecideStartColdForEachFailedCondition) {
     return d.reason;
   };
   EXPECT_EQ(cold_reason([](StartInputs& in) { in.have_previous = false; }), "no previous balloon");
+  EXPECT_EQ(cold_reason([](StartInputs& in) {
+              in.have_previous = false;
+              in.previous_dropped = "sequence 3 failed";
+            }),
+            "no previous balloon (sequence 3 failed)");
   EXPECT_EQ(cold_reason([](StartInputs& in) { in.seed_overridden = true; }), "seed override");
   EXPECT_EQ(cold_reason([](StartInputs& in) { in.previous_quality_ok = false; }),
             "previous result suspect");

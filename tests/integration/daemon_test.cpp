@@ -477,6 +477,36 @@ TEST(DaemonRun, DirectoryReplayProcessesEveryVolume) {
   for (const auto& [seq, line] : by_seq) EXPECT_EQ(line["genus"], 0) << line.dump();
 }
 
+// A volume that fails drops the balloon the next one would start from: that volume starts cold
+// and its journal line says why, not only "no previous balloon" as on the first volume.
+TEST(DaemonRun, AColdStartAfterAFailedVolumeSaysWhichFailed) {
+  const ScratchDir dir("after_failure");
+  fs::create_directories(dir / "volumes");
+  sonomesh::sim::PhantomSpec spec{.phantom = "sphere", .size_vox = 48};
+  const auto phantom = sonomesh::sim::make_phantom(spec);
+  ASSERT_FALSE(sonomesh::volume::write_volume(phantom.image, dir / "volumes" / "v0.nrrd"));
+  // No seed can be taken in a volume of one grey level: the volume fails.
+  sonomesh::volume::Volume flat(phantom.image.dims(), phantom.image.spacing_mm(),
+                                phantom.image.origin_mm(), phantom.image.type());
+  for (auto& v : flat.u8()) v = 100;
+  ASSERT_FALSE(sonomesh::volume::write_volume(flat, dir / "volumes" / "v1.nrrd"));
+  ASSERT_FALSE(sonomesh::volume::write_volume(phantom.image, dir / "volumes" / "v2.nrrd"));
+  const std::string seed_mm = std::to_string(phantom.seed_mm.x()) + "," +
+                              std::to_string(phantom.seed_mm.y()) + "," +
+                              std::to_string(phantom.seed_mm.z());
+  auto daemon = start_daemon(dir, "replay:" + (dir / "volumes").string(), {"--seed-mm", seed_mm});
+  const auto code = daemon->wait(30000ms);
+  ASSERT_TRUE(code.has_value());
+  EXPECT_EQ(*code, 0) << daemon->stderr_text();
+  auto by_seq = check_journal(dir / "out");
+  ASSERT_EQ(by_seq.size(), 3u) << daemon->stderr_text();
+  EXPECT_EQ(by_seq[0]["start_reason"], "no previous balloon") << by_seq[0].dump();
+  EXPECT_EQ(by_seq[1]["status"], "failed") << by_seq[1].dump();
+  EXPECT_EQ(by_seq[2]["status"], "processed") << by_seq[2].dump();
+  EXPECT_EQ(by_seq[2]["start_reason"], "no previous balloon (sequence 1 failed)")
+      << by_seq[2].dump();
+}
+
 // A tracked object whose genus changes (a needle-pierced cyst, then a cyst without it, on the same
 // grid) is flagged once, on the volume where it changed; before and after it is ok.
 TEST(DaemonRun, AGenusChangeOfTheTrackedObjectIsFlaggedOnce) {
