@@ -306,6 +306,10 @@ Failed store_vertex_value(const Columns& c, int p, std::size_t n, double value, 
 Failed read_element(Source& src, const Element& e, MeshReadResult& r, bool& have_vertices,
                     bool& have_faces) {
   const bool is_vertex = e.name == "vertex", is_face = e.name == "face";
+  // A second one would replace the vertices its faces or stop reasons were read against (found
+  // by fuzz_ply: 3 vertices with stop reasons, then 8 without).
+  if ((is_vertex && have_vertices) || (is_face && have_faces))
+    return bad_header("a second " + e.name + " element");
   const Columns c = columns(e);
   if (is_vertex) {
     if (c.x < 0 || c.y < 0 || c.z < 0) return bad_header("vertex element lacks x, y or z");

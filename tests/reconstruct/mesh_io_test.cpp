@@ -138,6 +138,32 @@ TEST(MeshIo, BadPlyFilesGiveErrorsNotCrashes) {
   EXPECT_EQ(read_ply(temp("badindex.ply")).error->code, MeshIoError::Code::BadIndex);
 }
 
+// A second vertex element would replace the vertices the stop reasons (or the faces) were read
+// against: refused, never a result whose stop reasons or faces do not match its vertices.
+TEST(MeshIo, ASecondVertexOrFaceElementIsRefused) {
+  const std::string xyz = "property float x\nproperty float y\nproperty float z\n";
+  const std::string face = "element face 1\nproperty list uchar int vertex_indices\n";
+  std::ofstream(temp("two_vertex.ply"))
+      << "ply\nformat ascii 1.0\nelement vertex 3\n"
+      << xyz << "property uchar stop\n"
+      << "element vertex 4\n"
+      << xyz << face << "end_header\n"
+      << "0 0 0 1\n1 0 0 1\n0 1 0 1\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n3 0 1 2\n";
+  const MeshReadResult two_vertex = read_ply(temp("two_vertex.ply"));
+  ASSERT_FALSE(two_vertex);
+  EXPECT_EQ(two_vertex.error->code, MeshIoError::Code::BadHeader);
+  EXPECT_NE(two_vertex.error->message.find("a second vertex element"), std::string::npos)
+      << two_vertex.error->message;
+  const std::string one_vertex = "ply\nformat ascii 1.0\nelement vertex 3\n" + xyz;
+  const std::string points = "0 0 0\n1 0 0\n0 1 0\n";
+  std::ofstream(temp("two_face.ply")) << one_vertex << face << face << "end_header\n"
+                                      << points << "3 0 1 2\n3 0 2 1\n";
+  EXPECT_EQ(read_ply(temp("two_face.ply")).error->code, MeshIoError::Code::BadHeader);
+  std::ofstream(temp("one_each.ply")) << one_vertex << face << "end_header\n"
+                                      << points << "3 0 1 2\n";
+  EXPECT_TRUE(read_ply(temp("one_each.ply")));
+}
+
 TEST(MeshIo, StlAndObjAreWritten) {
   const Mesh m = test::uv_sphere(Vec3f::Zero(), 4.0f, 10, 11);
   ASSERT_FALSE(write_mesh(m, temp("s.stl")).has_value());
