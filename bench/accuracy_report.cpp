@@ -13,6 +13,7 @@
 // "wall_offset_vox": the result's vertices' mean signed distance from the truth's wall (outside
 // positive), and in a probe's sector apart for those facing the probe and those whose wall runs
 // along the beam (docs/stopping.md item 13); --summarize gives the last two's means.
+// "balloon_offset_vox": the same for the first balloon, before the steps that place the wall.
 #include <CLI/CLI.hpp>
 #include <algorithm>
 #include <cmath>
@@ -67,11 +68,12 @@ volume::Volume signed_distance_vox(const volume::Volume& truth) {
   return sd;
 }
 
-// The surface's vertices' mean signed distance from the truth's wall, all of them and, where the
-// image is a probe's sector, those facing its apex and those along its beams.
-json wall_offsets(const sim::Phantom& phantom, const segment::Mesh& surface) {
+// The surface's vertices' mean signed distance `sd` (signed_distance_vox) from the truth's wall,
+// all of them and, where the image is a probe's sector, those facing its apex and those along its
+// beams.
+json wall_offsets(const sim::Phantom& phantom, const volume::Volume& sd,
+                  const segment::Mesh& surface) {
   if (surface.vertices.empty()) return nullptr;
-  const volume::Volume sd = signed_distance_vox(phantom.truth);
   const std::optional<volume::Vec3f> apex = daemon::internal::sector_apex_mm(
       phantom.image, daemon::internal::no_data_mask(phantom.image));
   const std::vector<volume::Vec3f> normal = mesh::vertex_normals(surface);
@@ -143,29 +145,33 @@ json measure(const sim::PhantomSpec& spec, const daemon::RunConfig& config, int 
     balloon_dice = daemon::internal::dice(
         reconstruct::rasterize_labels(result.balloon, phantom.image), phantom.truth);
   const auto& s = result.stop_counts;
-  row.update({{"dice", dice},
-              {"balloon_dice", balloon_dice},
-              {"volume_ratio", volume_ratio},
-              {"volume_error", volume_error},
-              {"msd_vox", distances.mean_vox},
-              {"hd95_vox", distances.hd95_vox},
-              {"wall_offset_vox", result.ok ? wall_offsets(phantom, result.mesh) : json(nullptr)},
-              {"genus_found", result.topology.genus},
-              {"watertight", result.topology.watertight},
-              {"components", result.topology.components},
-              {"quality", result.quality_ok ? "ok" : "suspect"},
-              {"quality_reasons", result.quality_reasons},
-              {"wall_support", result.wall_support},
-              {"open_patch", result.open_patch},
-              {"seed_level", result.balloon_stats.seed_level},
-              {"tissue_level", result.balloon_stats.tissue_level},
-              {"seed_sigma", result.balloon_stats.seed_sigma},
-              {"speckle_grain_mm", result.speckle_grain_mm},
-              {"smooth_sigma_mm", result.smooth_sigma_mm},
-              {"deepest_depth_mm", result.deepest_depth_mm},
-              {"stop_rule", result.stop_rule},
-              {"second_opinion", result.second_opinion},
-              {"stops", {s.boundary, s.curvature, s.self_intersection, s.iteration_limit}}});
+  const volume::Volume sd = signed_distance_vox(phantom.truth);
+  row.update(
+      {{"dice", dice},
+       {"balloon_dice", balloon_dice},
+       {"volume_ratio", volume_ratio},
+       {"volume_error", volume_error},
+       {"msd_vox", distances.mean_vox},
+       {"hd95_vox", distances.hd95_vox},
+       {"wall_offset_vox", result.ok ? wall_offsets(phantom, sd, result.mesh) : json(nullptr)},
+       {"balloon_offset_vox",
+        result.ok ? wall_offsets(phantom, sd, result.balloon) : json(nullptr)},
+       {"genus_found", result.topology.genus},
+       {"watertight", result.topology.watertight},
+       {"components", result.topology.components},
+       {"quality", result.quality_ok ? "ok" : "suspect"},
+       {"quality_reasons", result.quality_reasons},
+       {"wall_support", result.wall_support},
+       {"open_patch", result.open_patch},
+       {"seed_level", result.balloon_stats.seed_level},
+       {"tissue_level", result.balloon_stats.tissue_level},
+       {"seed_sigma", result.balloon_stats.seed_sigma},
+       {"speckle_grain_mm", result.speckle_grain_mm},
+       {"smooth_sigma_mm", result.smooth_sigma_mm},
+       {"deepest_depth_mm", result.deepest_depth_mm},
+       {"stop_rule", result.stop_rule},
+       {"second_opinion", result.second_opinion},
+       {"stops", {s.boundary, s.curvature, s.self_intersection, s.iteration_limit}}});
   return row;
 }
 
