@@ -186,6 +186,9 @@ Failed parse_property(std::istringstream& ls, const std::string& line, Element& 
     ls >> ct >> it >> p.name;
     const auto c = parse_type(ct), i = parse_type(it);
     if (!c || !i) return bad_header("bad list property: " + line);
+    // A count is a whole number (a float one read NaN; found by fuzz_ply).
+    if (*c == Type::F32 || *c == Type::F64)
+      return bad_header("list count of a floating-point type: " + line);
     p.is_list = true;
     p.count_type = *c;
     p.type = *i;
@@ -270,15 +273,16 @@ Columns columns(const Element& e) {
 Failed read_list(Source& src, const Property& prop, const Element& e, std::size_t n, bool indices,
                  std::vector<double>& list, Mesh& mesh) {
   double value = 0.0;
-  if (!src.read(prop.count_type, &value) || value < 0 || value > 1e6)
+  if (!src.read(prop.count_type, &value) || !(value >= 0 && value <= 1e6))
     return Failure{MeshIoError::Code::Truncated, "truncated or bad list in element " + e.name};
   list.resize(static_cast<std::size_t>(value));
   for (auto& x : list)
     if (!src.read(prop.type, &x))
       return Failure{MeshIoError::Code::Truncated, "truncated list in element " + e.name};
   if (!indices) return std::nullopt;
+  // (Written to be false for NaN, and for a fraction, which names no vertex either.)
   for (double x : list)
-    if (x < 0 || x >= double(mesh.vertices.size()))
+    if (!(x >= 0 && x < double(mesh.vertices.size()) && x == std::floor(x)))
       return Failure{MeshIoError::Code::BadIndex,
                      "face " + std::to_string(n) + " indexes a missing vertex"};
   for (std::size_t k = 1; k + 1 < list.size(); ++k)

@@ -3,6 +3,7 @@
 
 #include <fstream>
 #include <iterator>
+#include <limits>
 
 #include "shapes.h"
 
@@ -162,6 +163,34 @@ TEST(MeshIo, ASecondVertexOrFaceElementIsRefused) {
   std::ofstream(temp("one_each.ply")) << one_vertex << face << "end_header\n"
                                       << points << "3 0 1 2\n";
   EXPECT_TRUE(read_ply(temp("one_each.ply")));
+}
+
+// A list's count of a floating-point type, and a vertex index that is NaN or a fraction, are
+// refused (a NaN count or index was cast to an integer: undefined; found by fuzz_ply).
+TEST(MeshIo, NonIntegerListCountsAndIndicesAreRefused) {
+  const std::string vertices =
+      "element vertex 3\nproperty float x\nproperty float y\nproperty float z\n";
+  std::ofstream(temp("float_count.ply"))
+      << "ply\nformat ascii 1.0\n"
+      << vertices << "element face 1\nproperty list float int vertex_indices\nend_header\n"
+      << "0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n";
+  const MeshReadResult float_count = read_ply(temp("float_count.ply"));
+  ASSERT_FALSE(float_count);
+  EXPECT_EQ(float_count.error->code, MeshIoError::Code::BadHeader);
+  // Binary: three vertices, then one face whose float indices are 0, 1 and NaN (or 1.5).
+  for (const float bad : {std::numeric_limits<float>::quiet_NaN(), 1.5f}) {
+    std::string body(3 * 3 * sizeof(float), '\0');
+    body += static_cast<char>(3);
+    for (const float index : {0.0f, 1.0f, bad})
+      body.append(reinterpret_cast<const char*>(&index), sizeof index);
+    std::ofstream(temp("float_index.ply"), std::ios::binary)
+        << "ply\nformat binary_little_endian 1.0\n"
+        << vertices << "element face 1\nproperty list uchar float vertex_indices\nend_header\n"
+        << body;
+    const MeshReadResult float_index = read_ply(temp("float_index.ply"));
+    ASSERT_FALSE(float_index) << bad;
+    EXPECT_EQ(float_index.error->code, MeshIoError::Code::BadIndex) << bad;
+  }
 }
 
 TEST(MeshIo, StlAndObjAreWritten) {
