@@ -59,6 +59,21 @@ TEST(NrrdDefects, OverlongHeaderLineIsRefusedBeforeTeem) {
   }
 }
 
+// Teem ends a header line at a carriage return as well: a long field line after one, behind a
+// key:=value (exempt from the bound), is refused before Teem quotes it (found by fuzz_nrrd,
+// which crashed Teem's error message buffer).
+TEST(NrrdDefects, AFieldLineAfterACarriageReturnIsBoundedToo) {
+  TempDir dir;
+  const auto path = dir.path / "cr.nrrd";
+  write_file(path, "NRRD0004\nkey:=value\r" + std::string(1000, '0') + ": uint8\n" + kFields +
+                       "\n12345678");
+  expect_refused(path, Code::BadHeader);
+  const auto ok = dir.path / "crlf.nrrd";
+  write_file(ok, "NRRD0004\r\nkey:=value\r\n" + kFields + "\n12345678");
+  const auto r = read_volume(ok);
+  ASSERT_TRUE(r) << r.error->message;
+}
+
 // Comments and key:=value lines are never quoted by Teem: 3D Slicer writes ones over 1 KB.
 TEST(NrrdDefects, LongCommentsAndKeyValuesStillRead) {
   TempDir dir;
