@@ -107,6 +107,14 @@ struct Element {
   std::vector<Property> properties;
 };
 
+// A little-endian T from its bytes at b.
+template <typename T>
+double load(const char* b) {
+  T x;
+  std::memcpy(&x, b, sizeof x);
+  return static_cast<double>(x);
+}
+
 // Reads one scalar as double, from binary bytes or ascii tokens.
 class Source {
  public:
@@ -117,47 +125,29 @@ class Source {
     if (!in_.read(b, type_size(t))) return false;
     switch (t) {
       case Type::I8:
-        *value = static_cast<std::int8_t>(b[0]);
+        *value = load<std::int8_t>(b);
         break;
       case Type::U8:
-        *value = static_cast<std::uint8_t>(b[0]);
+        *value = load<std::uint8_t>(b);
         break;
-      case Type::I16: {
-        std::int16_t x;
-        std::memcpy(&x, b, 2);
-        *value = x;
+      case Type::I16:
+        *value = load<std::int16_t>(b);
         break;
-      }
-      case Type::U16: {
-        std::uint16_t x;
-        std::memcpy(&x, b, 2);
-        *value = x;
+      case Type::U16:
+        *value = load<std::uint16_t>(b);
         break;
-      }
-      case Type::I32: {
-        std::int32_t x;
-        std::memcpy(&x, b, 4);
-        *value = x;
+      case Type::I32:
+        *value = load<std::int32_t>(b);
         break;
-      }
-      case Type::U32: {
-        std::uint32_t x;
-        std::memcpy(&x, b, 4);
-        *value = x;
+      case Type::U32:
+        *value = load<std::uint32_t>(b);
         break;
-      }
-      case Type::F32: {
-        float x;
-        std::memcpy(&x, b, 4);
-        *value = x;
+      case Type::F32:
+        *value = load<float>(b);
         break;
-      }
-      case Type::F64: {
-        double x;
-        std::memcpy(&x, b, 8);
-        *value = x;
+      case Type::F64:
+        *value = load<double>(b);
         break;
-      }
     }
     return true;
   }
@@ -185,10 +175,9 @@ Failed parse_property(std::istringstream& ls, const std::string& line, Element& 
     std::string ct, it;
     ls >> ct >> it >> p.name;
     const auto c = parse_type(ct), i = parse_type(it);
-    if (!c || !i) return bad_header("bad list property: " + line);
-    // A count is a whole number (a float one read NaN; found by fuzz_ply).
-    if (*c == Type::F32 || *c == Type::F64)
-      return bad_header("list count of a floating-point type: " + line);
+    // A count is of an integer type (a float one read NaN; found by fuzz_ply).
+    if (!c || !i || *c == Type::F32 || *c == Type::F64)
+      return bad_header("bad list property: " + line);
     p.is_list = true;
     p.count_type = *c;
     p.type = *i;
@@ -269,7 +258,8 @@ Columns columns(const Element& e) {
   return c;
 }
 
-// One list property of item n; a face's vertex indices become triangles (polygons as fans).
+// One list property of item n; a face's vertex indices become triangles (polygons as fans). An
+// index must be a whole number naming a vertex (the tests are false for NaN).
 Failed read_list(Source& src, const Property& prop, const Element& e, std::size_t n, bool indices,
                  std::vector<double>& list, Mesh& mesh) {
   double value = 0.0;
@@ -280,7 +270,6 @@ Failed read_list(Source& src, const Property& prop, const Element& e, std::size_
     if (!src.read(prop.type, &x))
       return Failure{MeshIoError::Code::Truncated, "truncated list in element " + e.name};
   if (!indices) return std::nullopt;
-  // (Written to be false for NaN, and for a fraction, which names no vertex either.)
   for (double x : list)
     if (!(x >= 0 && x < double(mesh.vertices.size()) && x == std::floor(x)))
       return Failure{MeshIoError::Code::BadIndex,
@@ -310,8 +299,7 @@ Failed store_vertex_value(const Columns& c, int p, std::size_t n, double value, 
 Failed read_element(Source& src, const Element& e, MeshReadResult& r, bool& have_vertices,
                     bool& have_faces) {
   const bool is_vertex = e.name == "vertex", is_face = e.name == "face";
-  // A second one would replace the vertices its faces or stop reasons were read against (found
-  // by fuzz_ply: 3 vertices with stop reasons, then 8 without).
+  // A second one would replace the vertices its faces or stop reasons were read against.
   if ((is_vertex && have_vertices) || (is_face && have_faces))
     return bad_header("a second " + e.name + " element");
   const Columns c = columns(e);
